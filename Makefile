@@ -1,0 +1,95 @@
+# dmdsm: `make demo` runs the main job on the emulator; `make test` runs every test.
+# Both install what is missing first (apt packages once, then a local .venv).
+
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMPS := build/stamps
+HOSTBUILD := build/host
+FUZZ_SECONDS ?= 20
+
+APT_PACKAGES := gcc make clang libclang-rt-14-dev cppcheck
+CFLAGS_HOST := -std=c11 -Wall -Wextra -Werror -pedantic -g -O1
+SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
+PROTO_C := protocol/c/dmdsm_frame.c protocol/c/dmdsm_spec.c
+PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
+
+.PHONY: all deps venv build test test-c fuzz lint gen-check gen bench demo clean
+
+all: build
+
+## ---------------------------------------------------------------- install
+# apt-get update runs once, and only if a package is missing.
+$(STAMPS)/apt:
+	@mkdir -p $(STAMPS)
+	@missing=""; for p in $(APT_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "ok installed" || missing="$$missing $$p"; \
+	done; \
+	if ! $(PYTHON) -c 'import ensurepip, venv' 2>/dev/null; then missing="$$missing python3-venv"; fi; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing:$$missing"; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+	@touch $@
+
+$(VENV)/stamp: pyproject.toml | $(STAMPS)/apt
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@$(PY) -c 'from dmdsm.protocol import cobs_extension_loaded as c; assert c(), "cobs C extension did not build"'
+	@touch $@
+
+deps: $(STAMPS)/apt $(VENV)/stamp
+venv: $(VENV)/stamp
+
+## ---------------------------------------------------------------- build
+$(HOSTBUILD)/test_frame: $(PROTO_C) $(PROTO_H) tests/c/test_frame.c tests/c/vectors.c tests/c/vectors.h | $(STAMPS)/apt
+	@mkdir -p $(HOSTBUILD)
+	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Itests/c $(PROTO_C) tests/c/test_frame.c tests/c/vectors.c -o $@
+
+$(HOSTBUILD)/proto_tool: $(PROTO_C) $(PROTO_H) tests/c/proto_tool.c | $(STAMPS)/apt
+	@mkdir -p $(HOSTBUILD)
+	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c $(PROTO_C) tests/c/proto_tool.c -o $@
+
+$(HOSTBUILD)/fuzz_decoder: $(PROTO_C) $(PROTO_H) tests/c/fuzz_decoder.c | $(STAMPS)/apt
+	@mkdir -p $(HOSTBUILD)
+	clang -std=c11 -Wall -Wextra -Werror -g -O1 -fsanitize=fuzzer,address,undefined \
+	  -Iprotocol/c $(PROTO_C) tests/c/fuzz_decoder.c -o $@
+
+build: deps $(HOSTBUILD)/test_frame $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
+
+## ---------------------------------------------------------------- checks
+gen:
+	$(PY) -m dmdsm.protocol.gen_c
+
+gen-check: deps
+	$(PY) -m dmdsm.protocol.gen_c --check
+
+lint: deps
+	$(PY) -m ruff check protocol host hil_sim tests bench
+	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
+	  --std=c11 --inline-suppr -Iprotocol/c protocol/c tests/c
+
+test-c: build
+	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_frame protocol/vectors/golden.txt
+
+fuzz: build
+	@mkdir -p build/fuzz_corpus
+	$(PY) -c 'import json,pathlib; [pathlib.Path("build/fuzz_corpus/%s" % r["name"]).write_bytes(bytes.fromhex(r["frame"])) for r in json.load(open("protocol/vectors/golden.json"))]'
+	$(HOSTBUILD)/fuzz_decoder -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -print_final_stats=1 \
+	  build/fuzz_corpus 2>&1 | tail -n 4
+
+test: deps build gen-check lint test-c fuzz
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q
+
+bench: deps
+	$(PY) bench/protocol.py
+
+## ---------------------------------------------------------------- demo
+demo: deps
+	$(VENV)/bin/dmdsm demo --out out
+
+clean:
+	rm -rf build out

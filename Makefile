@@ -2,6 +2,7 @@
 # Both install what is missing first (apt packages once, then a local .venv).
 
 SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -27,6 +28,8 @@ $(STAMPS)/apt:
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "ok installed" || missing="$$missing $$p"; \
 	done; \
 	if ! $(PYTHON) -c 'import ensurepip, venv' 2>/dev/null; then missing="$$missing python3-venv"; fi; \
+	if ! $(PYTHON) -c 'import os, sysconfig; assert os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h"))' 2>/dev/null; \
+	  then missing="$$missing python3-dev"; fi; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing:$$missing"; \
 	  export DEBIAN_FRONTEND=noninteractive; \
@@ -61,11 +64,13 @@ $(HOSTBUILD)/fuzz_decoder: $(PROTO_C) $(PROTO_H) tests/c/fuzz_decoder.c | $(STAM
 build: deps $(HOSTBUILD)/test_frame $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
 
 ## ---------------------------------------------------------------- checks
-gen:
+gen: deps
 	$(PY) -m dmdsm.protocol.gen_c
+	$(PY) -m dmdsm.protocol.gen_docs
 
 gen-check: deps
 	$(PY) -m dmdsm.protocol.gen_c --check
+	$(PY) -m dmdsm.protocol.gen_docs --check
 
 lint: deps
 	$(PY) -m ruff check protocol host hil_sim tests bench

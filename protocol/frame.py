@@ -1,4 +1,4 @@
-"""Wire framing: 0x00 | COBS(header | payload | CRC-32) | 0x00, streaming decoder with loss counters."""
+"""Wire framing 0x00 | COBS(header | payload | CRC-32) | 0x00; streaming decoder with counters."""
 
 from __future__ import annotations
 

@@ -49,7 +49,8 @@ def _header(spec: Spec) -> str:
            f"#define DMDSM_MAX_COMMAND_PAYLOAD {spec.max_command_payload}u\n",
            f"#define DMDSM_HEADER_SIZE {HEADER.size}u\n#define DMDSM_CRC_SIZE {CRC_SIZE}u\n",
            "/* largest un-stuffed frame and largest COBS frame between delimiters */\n",
-           f"#define DMDSM_MAX_RAW {spec.max_raw}u\n#define DMDSM_MAX_ENCODED {spec.max_encoded}u\n",
+           f"#define DMDSM_MAX_RAW {spec.max_raw}u\n",
+           f"#define DMDSM_MAX_ENCODED {spec.max_encoded}u\n",
            "#define DMDSM_ENCODED_SIZE(raw) ((raw) + (raw) / 254u + 1u)\n\n"]
     for name, bit in spec.flags.items():
         out.append(f"#define DMDSM_FLAG_{up(name)} 0x{bit:02x}u /* {spec.flag_docs[name]} */\n")
@@ -64,7 +65,8 @@ def _header(spec: Spec) -> str:
         out.append(f"    DMDSM_MSG_{up(m.name)} = 0x{m.id:02x},\n")
     out.append("};\n")
     for m in spec.messages:
-        out.append(f"\n/* {m.name}: {m.doc} ({m.dir} -> {'device' if m.dir == 'host' else 'host'}) */\n")
+        to = "device" if m.dir == "host" else "host"
+        out.append(f"\n/* {m.name}: {m.doc} ({m.dir} -> {to}) */\n")
         out.append(f"#define DMDSM_{up(m.name)}_FIXED_SIZE {m.fixed.size}u\n")
         out.append(f"struct dmdsm_{m.name} {{\n")
         for f in m.scalar_fields:

@@ -80,7 +80,8 @@ class Message:
                 parts.append(f"{k}=<{v.size} x {v.dtype}>")
             else:
                 parts.append(f"{k}={v!r}")
-        return f"Message({self.spec.name!r}, seq={self.seq}, flags={self.flags}, {', '.join(parts)})"
+        return (f"Message({self.spec.name!r}, seq={self.seq}, flags={self.flags}, "
+                f"{', '.join(parts)})")
 
 
 def pack_payload(msg: Message) -> bytes:

@@ -1,4 +1,4 @@
-"""`dmdsm protocol decode|encode`: read a raw serial capture as messages, or write frames from JSON."""
+"""`dmdsm protocol decode|encode`: a raw serial capture as messages, or frames from JSON."""
 
 from __future__ import annotations
 

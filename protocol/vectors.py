@@ -1,4 +1,4 @@
-"""Golden test vectors shared by the Python and C tests: `python -m dmdsm.protocol.vectors` rewrites them.
+"""Golden vectors shared by the Python and C tests (`python -m dmdsm.protocol.vectors` rewrites).
 
 golden.json holds each vector's meaning (message as JSON, frame hex); golden.txt holds the
 same frames in a line format the C tests parse: name|type|seq|flags|payload|frame|fields,
@@ -29,7 +29,7 @@ def c_format(msg: Message) -> str:
     off = 0
     for fs in msg.spec.scalar_fields:
         v = msg.fields[fs.name]
-        parts.append(f"{fs.name}={'%.9g' % v if fs.type == 'f32' else int(v)}")
+        parts.append(f"{fs.name}={f'{v:.9g}' if fs.type == 'f32' else int(v)}")
         off += SCALARS[fs.type][1]
     tail = msg.spec.tail
     if tail is not None:

@@ -5,7 +5,6 @@ import pytest
 from cobs import cobs
 from hypothesis import given
 from hypothesis import strategies as st
-from strategies import SPEC, any_message
 
 from dmdsm.protocol import (
     FrameDecoder,
@@ -16,6 +15,7 @@ from dmdsm.protocol import (
     encode_frame,
     encode_raw,
 )
+from strategies import SPEC, any_message
 
 
 def test_cobs_c_extension_is_in_use():

@@ -76,11 +76,9 @@ static void test_roundtrip_lengths(void)
         CHECK(n == DMDSM_WIRE_SIZE(len) || n < DMDSM_WIRE_SIZE(len));
         CHECK(n >= len + 11);
         dmdsm_decoder_init(&d, rxbuf, sizeof rxbuf);
-        enum dmdsm_rx r = DMDSM_RX_NONE;
         size_t frames = 0;
         for (size_t i = 0; i < n; i++) {
-            r = dmdsm_decoder_feed(&d, out[i], &f);
-            if (r == DMDSM_RX_FRAME) {
+            if (dmdsm_decoder_feed(&d, out[i], &f) == DMDSM_RX_FRAME) {
                 frames++;
                 CHECK(f.seq == (uint16_t)len);
                 CHECK(f.len == len);

@@ -15,6 +15,8 @@ CFLAGS_HOST := -std=c11 -Wall -Wextra -Werror -pedantic -g -O1
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 PROTO_C := protocol/c/dmdsm_frame.c protocol/c/dmdsm_spec.c
 PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
+CORE_C := $(wildcard firmware/stm32/core/*.c)
+CORE_H := $(wildcard firmware/stm32/core/*.h)
 
 .PHONY: all deps venv build test test-c fuzz lint gen-check gen bench demo clean
 
@@ -52,6 +54,10 @@ $(HOSTBUILD)/test_frame: $(PROTO_C) $(PROTO_H) tests/c/test_frame.c tests/c/vect
 	@mkdir -p $(HOSTBUILD)
 	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Itests/c $(PROTO_C) tests/c/test_frame.c tests/c/vectors.c -o $@
 
+$(HOSTBUILD)/test_core: $(PROTO_C) $(PROTO_H) $(CORE_C) $(CORE_H) tests/c/test_core.c | $(STAMPS)/apt
+	@mkdir -p $(HOSTBUILD)
+	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Ifirmware/stm32/core $(PROTO_C) $(CORE_C) tests/c/test_core.c -o $@
+
 $(HOSTBUILD)/proto_tool: $(PROTO_C) $(PROTO_H) tests/c/proto_tool.c | $(STAMPS)/apt
 	@mkdir -p $(HOSTBUILD)
 	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c $(PROTO_C) tests/c/proto_tool.c -o $@
@@ -61,7 +67,7 @@ $(HOSTBUILD)/fuzz_decoder: $(PROTO_C) $(PROTO_H) tests/c/fuzz_decoder.c | $(STAM
 	clang -std=c11 -Wall -Wextra -Werror -g -O1 -fsanitize=fuzzer,address,undefined \
 	  -Iprotocol/c $(PROTO_C) tests/c/fuzz_decoder.c -o $@
 
-build: deps $(HOSTBUILD)/test_frame $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
+build: deps $(HOSTBUILD)/test_frame $(HOSTBUILD)/test_core $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
 
 ## ---------------------------------------------------------------- checks
 gen: deps
@@ -75,10 +81,11 @@ gen-check: deps
 lint: deps
 	$(PY) -m ruff check protocol host hil_sim tests bench
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
-	  --std=c11 --inline-suppr -Iprotocol/c protocol/c tests/c
+	  --std=c11 --inline-suppr -Iprotocol/c -Ifirmware/stm32/core protocol/c firmware/stm32/core tests/c
 
 test-c: build
 	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_frame protocol/vectors/golden.txt
+	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_core
 
 fuzz: build
 	@mkdir -p build/fuzz_corpus

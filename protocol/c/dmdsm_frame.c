@@ -129,6 +129,13 @@ static enum dmdsm_rx finish(struct dmdsm_decoder *d, struct dmdsm_frame *f)
         d->stats.crc_errors++;
         return DMDSM_RX_CRC;
     }
+    /* the header is trustworthy from here on: fill it so a device can NAK */
+    f->version = b[0];
+    f->type = b[1];
+    f->flags = b[2];
+    f->seq = (uint16_t)(b[3] | b[4] << 8);
+    f->payload = b + DMDSM_HEADER_SIZE;
+    f->len = body - DMDSM_HEADER_SIZE;
     if (b[0] != DMDSM_PROTOCOL_VERSION) {
         d->stats.bad_version++;
         return DMDSM_RX_BAD_VERSION;
@@ -137,15 +144,9 @@ static enum dmdsm_rx finish(struct dmdsm_decoder *d, struct dmdsm_frame *f)
         d->stats.unknown_type++;
         return DMDSM_RX_UNKNOWN_TYPE;
     }
-    f->version = b[0];
-    f->type = b[1];
-    f->flags = b[2];
-    f->seq = (uint16_t)(b[3] | b[4] << 8);
-    f->payload = b + DMDSM_HEADER_SIZE;
-    f->len = body - DMDSM_HEADER_SIZE;
     if (!dmdsm_payload_ok(f->type, f->payload, f->len)) {
         d->stats.malformed++;
-        return DMDSM_RX_MALFORMED;
+        return DMDSM_RX_BAD_LENGTH;
     }
     d->stats.frames++;
     return DMDSM_RX_FRAME;

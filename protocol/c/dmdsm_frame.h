@@ -53,6 +53,10 @@ enum dmdsm_rx {
     DMDSM_RX_OVERSIZE,     /* longer than the buffer; discarded up to the next 0x00 */
     DMDSM_RX_UNKNOWN_TYPE, /* CRC good, type not in the spec */
     DMDSM_RX_BAD_VERSION,  /* CRC good, protocol version not ours */
+    DMDSM_RX_BAD_LENGTH,   /* CRC good, payload length wrong for the type (counted
+                            * as malformed) */
+    /* UNKNOWN_TYPE, BAD_VERSION and BAD_LENGTH also fill *frame, so a
+     * device can NAK them */
 };
 
 struct dmdsm_rx_stats {

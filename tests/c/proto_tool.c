@@ -14,6 +14,7 @@ static const char *kind(enum dmdsm_rx r)
     switch (r) {
     case DMDSM_RX_CRC: return "crc_errors";
     case DMDSM_RX_MALFORMED: return "malformed";
+    case DMDSM_RX_BAD_LENGTH: return "malformed";
     case DMDSM_RX_OVERSIZE: return "oversize";
     case DMDSM_RX_UNKNOWN_TYPE: return "unknown_type";
     case DMDSM_RX_BAD_VERSION: return "bad_version";

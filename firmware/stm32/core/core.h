@@ -1,0 +1,96 @@
+/* The portable firmware core: commands, acquisition state machine, averaging, transmit queue. */
+#ifndef DMDSM_CORE_H
+#define DMDSM_CORE_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "board.h"       /* struct dmdsm_board_ops, dmdsm_board_info */
+#include "dmdsm_frame.h" /* struct dmdsm_decoder, DMDSM_WIRE_SIZE */
+
+#define DMDSM_FW_MAJOR 0
+#define DMDSM_FW_MINOR 1
+#define DMDSM_FW_PATCH 0
+
+#ifndef DMDSM_CORE_MAX_SAMPLES
+#define DMDSM_CORE_MAX_SAMPLES 8192u /* accumulator length; boards may accept fewer */
+#endif
+#define DMDSM_CORE_WAVE_SLOTS 2u /* waveform frames: one on the wire, one ready */
+#define DMDSM_CORE_CTL_SLOTS 4u  /* responses and log lines waiting for the link */
+#define DMDSM_CORE_CTL_FRAME DMDSM_WIRE_SIZE(240u)
+#define DMDSM_CORE_RX_CAP \
+    DMDSM_ENCODED_SIZE(DMDSM_HEADER_SIZE + DMDSM_MAX_COMMAND_PAYLOAD + DMDSM_CRC_SIZE)
+
+/* cumulative counters since boot, reported in status */
+struct dmdsm_counters {
+    uint32_t triggers;
+    uint32_t shots_sent;
+    uint32_t shots_dropped;
+    uint32_t adc_overruns;
+    uint32_t no_trigger_timeouts;
+    uint32_t rx_frames;
+    uint32_t ctl_dropped; /* responses lost to a full control queue (never expected) */
+};
+
+struct dmdsm_core {
+    const struct dmdsm_board_ops *ops;
+    const struct dmdsm_board_info *info;
+    struct dmdsm_set_config cfg;
+    uint8_t state;      /* enum dmdsm_state */
+    uint8_t last_error; /* enum dmdsm_error */
+    bool continuous;
+    uint32_t shots_remaining;
+    uint32_t shot_id;        /* next waveform's id, from 0 after each arm */
+    uint16_t wave_seq;       /* seq of the next waveform frame */
+    uint16_t log_seq;        /* seq of the next log frame */
+    uint64_t armed_at;       /* ticks of arm or of the last edge, for the timeout */
+    /* 64-bit clock from the board's 32-bit counter */
+    uint32_t clock_last;
+    uint64_t clock_high;
+    /* running average */
+    uint32_t acc[DMDSM_CORE_MAX_SAMPLES];
+    uint32_t n_in_avg;
+    uint64_t avg_first_edge;
+    uint32_t avg_phase_sum;
+    struct dmdsm_counters count;
+    /* receive */
+    struct dmdsm_decoder rx;
+    uint8_t rx_buf[DMDSM_CORE_RX_CAP];
+    bool have_last;    /* last command's seq and response, for retransmissions */
+    uint16_t last_seq;
+    uint8_t last_resp[DMDSM_CORE_CTL_FRAME];
+    size_t last_resp_len;
+    /* transmit: control frames first, then waveforms */
+    uint8_t ctl[DMDSM_CORE_CTL_SLOTS][DMDSM_CORE_CTL_FRAME];
+    size_t ctl_len[DMDSM_CORE_CTL_SLOTS];
+    unsigned ctl_head, ctl_count;
+    uint8_t wave[DMDSM_CORE_WAVE_SLOTS][DMDSM_WIRE_SIZE(DMDSM_MAX_PAYLOAD)];
+    size_t wave_len[DMDSM_CORE_WAVE_SLOTS];
+    unsigned wave_head, wave_count;
+    bool tx_wave; /* the transfer on the wire is wave[wave_head] */
+    bool tx_ctl;  /* the transfer on the wire is ctl[ctl_head] */
+};
+
+/* set up with default configuration, state idle */
+void dmdsm_core_init(struct dmdsm_core *c, const struct dmdsm_board_ops *ops,
+                     const struct dmdsm_board_info *info);
+/* bytes received from the host (any chunking) */
+void dmdsm_core_rx(struct dmdsm_core *c, const uint8_t *p, size_t n);
+/* a burst finished: samples, 32-bit ticks of the edge, edge-to-first-sample
+ * phase in ticks, and whether the ADC or DMA overran */
+void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
+                             uint32_t edge_ticks, uint16_t phase, bool overrun);
+/* run from the main loop: starts queued transfers, checks the trigger timeout */
+void dmdsm_core_poll(struct dmdsm_core *c);
+/* current time in ticks, 64-bit */
+uint64_t dmdsm_core_now(struct dmdsm_core *c);
+/* queue a log line (also used by boards, e.g. after a HardFault reset) */
+void dmdsm_core_log(struct dmdsm_core *c, uint8_t level, uint8_t code, const char *text);
+
+/* internal, shared between the core's files */
+void dmdsm_core_queue_ctl(struct dmdsm_core *c, const uint8_t *frame, size_t n);
+void dmdsm_core_stop(struct dmdsm_core *c);
+bool dmdsm_core_arm(struct dmdsm_core *c, uint32_t n_shots);
+
+#endif /* DMDSM_CORE_H */

@@ -1,0 +1,444 @@
+/* Unit tests of the portable firmware core against a fake board (run under ASan/UBSan). */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core.h"
+
+static int failures;
+#define CHECK(cond)                                                          \
+    do {                                                                     \
+        if (!(cond)) {                                                       \
+            fprintf(stderr, "%s:%d: CHECK(%s) failed\n", __FILE__, __LINE__, \
+                    #cond);                                                  \
+            failures++;                                                      \
+        }                                                                    \
+    } while (0)
+
+/* ---------------------------------------------------------------- fake board */
+static struct {
+    uint32_t now;
+    bool busy;
+    int arms, disarms;
+    uint8_t wire[1 << 20];
+    size_t wire_len;
+} B;
+
+static void arm_capture(void *ctx, const struct dmdsm_set_config *cfg)
+{
+    (void)ctx;
+    (void)cfg;
+    B.arms++;
+}
+static void disarm_capture(void *ctx) { (void)ctx; B.disarms++; }
+static uint32_t now_ticks(void *ctx) { (void)ctx; return B.now; }
+static bool tx_busy(void *ctx) { (void)ctx; return B.busy; }
+static void tx_start(void *ctx, const uint8_t *p, size_t n)
+{
+    (void)ctx;
+    if (B.wire_len + n <= sizeof B.wire) {
+        memcpy(B.wire + B.wire_len, p, n);
+        B.wire_len += n;
+    }
+}
+
+static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
+                                           tx_start, tx_busy};
+static const struct dmdsm_board_info info = {"test board", 1000000u, 3600000u, 8192u};
+static struct dmdsm_core core;
+
+/* ---------------------------------------------------------------- host side */
+#define MAX_MSGS 256
+static struct msg {
+    uint8_t type, flags;
+    uint16_t seq;
+    uint8_t payload[DMDSM_MAX_PAYLOAD];
+    size_t len;
+} msgs[MAX_MSGS];
+static size_t n_msgs;
+static uint8_t host_buf[DMDSM_MAX_ENCODED];
+
+static void reset(void)
+{
+    memset(&B, 0, sizeof B);
+    dmdsm_core_init(&core, &ops, &info);
+}
+
+/* run the core until its queues are empty, then decode what it sent */
+static void drain(void)
+{
+    for (int i = 0; i < 100 && (core.ctl_count || core.wave_count); i++)
+        dmdsm_core_poll(&core);
+    struct dmdsm_decoder d;
+    struct dmdsm_frame f;
+    dmdsm_decoder_init(&d, host_buf, sizeof host_buf);
+    n_msgs = 0;
+    for (size_t i = 0; i < B.wire_len; i++) {
+        if (dmdsm_decoder_feed(&d, B.wire[i], &f) == DMDSM_RX_FRAME && n_msgs < MAX_MSGS) {
+            struct msg *m = &msgs[n_msgs++];
+            m->type = f.type;
+            m->flags = f.flags;
+            m->seq = f.seq;
+            m->len = f.len;
+            memcpy(m->payload, f.payload, f.len);
+        }
+    }
+    CHECK(d.stats.crc_errors == 0 && d.stats.malformed == 0);
+    B.wire_len = 0;
+}
+
+static void send(uint8_t type, uint16_t seq, uint8_t flags, const uint8_t *p, size_t n)
+{
+    uint8_t frame[256];
+    size_t len = dmdsm_frame_encode(frame, sizeof frame, type, flags, seq, p, n);
+    dmdsm_core_rx(&core, frame, len);
+}
+
+static void set_config(uint16_t seq, const struct dmdsm_set_config *c)
+{
+    uint8_t p[DMDSM_SET_CONFIG_FIXED_SIZE];
+    send(DMDSM_MSG_SET_CONFIG, seq, 0, p, dmdsm_pack_set_config(c, p));
+}
+
+static void arm(uint16_t seq, uint32_t n)
+{
+    struct dmdsm_arm m = {.n_shots = n};
+    uint8_t p[4];
+    send(DMDSM_MSG_ARM, seq, 0, p, dmdsm_pack_arm(&m, p));
+}
+
+static struct dmdsm_status status(uint16_t seq)
+{
+    struct dmdsm_status s;
+    memset(&s, 0, sizeof s);
+    send(DMDSM_MSG_GET_STATUS, seq, 0, NULL, 0);
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_STATUS);
+    dmdsm_unpack_status(msgs[0].payload, msgs[0].len, &s);
+    return s;
+}
+
+/* expect exactly one NAK with this error and detail */
+static void expect_nak(uint8_t error, uint16_t detail, uint16_t seq)
+{
+    drain();
+    struct dmdsm_nak n = {0, 0, 0};
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_NAK);
+    CHECK(dmdsm_unpack_nak(msgs[0].payload, msgs[0].len, &n));
+    CHECK(n.error == error && n.detail == detail && msgs[0].seq == seq);
+    CHECK(msgs[0].flags & DMDSM_FLAG_RESPONSE);
+}
+
+static void expect_ack(uint8_t command, uint16_t seq)
+{
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_ACK && msgs[0].seq == seq &&
+          msgs[0].payload[0] == command);
+}
+
+static const struct dmdsm_set_config good = {1024, 1, 1, 0, 0, 0, 0, 1000};
+
+static void shot(uint16_t value, uint32_t edge)
+{
+    static uint16_t s[DMDSM_CORE_MAX_SAMPLES];
+    for (size_t i = 0; i < DMDSM_CORE_MAX_SAMPLES; i++)
+        s[i] = (uint16_t)(value + (i & 1));
+    dmdsm_core_capture_done(&core, s, edge, 10, false);
+}
+
+/* ---------------------------------------------------------------- tests */
+static void test_ping_identify(void)
+{
+    reset();
+    uint8_t p[4] = {1, 2, 3, 4};
+    send(DMDSM_MSG_PING, 7, 0, p, 4);
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_PONG && msgs[0].seq == 7 &&
+          memcmp(msgs[0].payload, p, 4) == 0 && msgs[0].flags == DMDSM_FLAG_RESPONSE);
+    send(DMDSM_MSG_IDENTIFY, 8, 0, NULL, 0);
+    drain();
+    struct dmdsm_identify_reply r;
+    CHECK(n_msgs == 1 && dmdsm_unpack_identify_reply(msgs[0].payload, msgs[0].len, &r));
+    CHECK(r.spec_hash == DMDSM_SPEC_HASH && r.protocol_version == DMDSM_PROTOCOL_VERSION);
+    CHECK(r.board_len == strlen("test board") && memcmp(r.board, "test board", 10) == 0);
+    CHECK(r.tick_hz == 1000000u && r.max_samples == 8192);
+}
+
+static void test_config_validation(void)
+{
+    reset();
+    set_config(1, &good);
+    expect_ack(DMDSM_MSG_SET_CONFIG, 1);
+    struct { struct dmdsm_set_config c; uint16_t detail; } bad[] = {
+        {{8, 1, 1, 0, 0, 0, 0, 0}, 1},        /* too few samples */
+        {{9000, 1, 1, 0, 0, 0, 0, 0}, 1},     /* too many */
+        {{1024, 0, 1, 0, 0, 0, 0, 0}, 2},     /* rate divider 0 */
+        {{1024, 1, 0, 0, 0, 0, 0, 0}, 3},     /* no shots averaged */
+        {{1024, 1, 5000, 0, 0, 0, 0, 0}, 3},  /* accumulator bound */
+        {{1024, 1, 1, 1024, 0, 0, 0, 0}, 4},  /* pretrigger >= n_samples */
+        {{1024, 1, 1, 0, 2, 0, 0, 0}, 5},     /* trigger edge */
+        {{1024, 1, 1, 0, 0, 9, 0, 0}, 6},     /* modality */
+        {{1024, 1, 1, 0, 0, 0, 3, 0}, 7},     /* sample format */
+        {{8192, 1, 1, 0, 0, 0, 1, 0}, 7},     /* u32 sums of 8192 samples exceed a frame */
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        set_config((uint16_t)(10 + i), &bad[i].c);
+        expect_nak(DMDSM_ERROR_OUT_OF_RANGE, bad[i].detail, (uint16_t)(10 + i));
+    }
+    send(DMDSM_MSG_GET_CONFIG, 30, 0, NULL, 0);
+    drain();
+    struct dmdsm_config now;
+    CHECK(n_msgs == 1 && dmdsm_unpack_config(msgs[0].payload, msgs[0].len, &now));
+    CHECK(memcmp(&now, &good, sizeof now) == 0); /* NAKs changed nothing */
+    arm(31, 0);
+    expect_ack(DMDSM_MSG_ARM, 31);
+    set_config(32, &good);
+    expect_nak(DMDSM_ERROR_BUSY, 0, 32);
+    arm(33, 0);
+    expect_nak(DMDSM_ERROR_BUSY, 0, 33);
+}
+
+static void test_bad_frames(void)
+{
+    reset();
+    send(0x7E, 1, 0, NULL, 0);
+    expect_nak(DMDSM_ERROR_UNKNOWN_TYPE, 0, 1);
+    uint8_t p[4] = {0};
+    send(DMDSM_MSG_PONG, 2, 0, p, 4); /* a device-to-host type */
+    expect_nak(DMDSM_ERROR_UNKNOWN_TYPE, 0, 2);
+    send(DMDSM_MSG_PING, 3, 0, p, 3);
+    expect_nak(DMDSM_ERROR_BAD_LENGTH, 0, 3);
+    /* another protocol version: hand-built frame */
+    uint8_t raw[13] = {9, DMDSM_MSG_PING, 0, 4, 0, 0, 0, 0, 0};
+    uint32_t crc = dmdsm_crc32(0, raw, 9);
+    for (int i = 0; i < 4; i++)
+        raw[9 + i] = (uint8_t)(crc >> (8 * i));
+    size_t k = 0;
+    uint8_t enc[40];
+    enc[k++] = 0;
+    size_t code_at = k++;
+    uint8_t code = 1;
+    for (int i = 0; i < 13; i++) {
+        if (raw[i] == 0) {
+            enc[code_at] = code;
+            code_at = k++;
+            code = 1;
+        } else {
+            enc[k++] = raw[i];
+            code++;
+        }
+    }
+    enc[code_at] = code;
+    enc[k++] = 0;
+    dmdsm_core_rx(&core, enc, k);
+    expect_nak(DMDSM_ERROR_BAD_VERSION, 0, 4);
+    /* garbage and damaged frames are counted, never answered */
+    const uint8_t junk[] = {0, 5, 1, 2, 3, 4, 0, 0x03, 0x41, 0x41, 0, 7, 7, 7, 0};
+    dmdsm_core_rx(&core, junk, sizeof junk);
+    uint8_t frame[32];
+    size_t n = dmdsm_frame_encode(frame, sizeof frame, DMDSM_MSG_PING, 0, 9, p, 4);
+    frame[3] ^= 0x40;
+    dmdsm_core_rx(&core, frame, n);
+    drain();
+    CHECK(n_msgs == 0);
+    struct dmdsm_status s = status(5);
+    CHECK(s.rx_crc_errors == 1);
+    CHECK(s.rx_malformed == 3 + 1 + 1); /* junk, bad length, bad version */
+    CHECK(s.rx_frames == 4 + 1);        /* four NAKed commands and get_status */
+}
+
+static void test_retransmission_executes_once(void)
+{
+    reset();
+    arm(9, 3);
+    arm(9, 3); /* the same command again after a lost ack */
+    drain();
+    CHECK(n_msgs == 2 && msgs[0].type == DMDSM_MSG_ACK && msgs[1].type == DMDSM_MSG_ACK);
+    CHECK(B.arms == 1);
+}
+
+static void test_averaging_and_shot_ids(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_average = 4;
+    c.n_samples = 64;
+    set_config(1, &c);
+    expect_ack(DMDSM_MSG_SET_CONFIG, 1);
+    arm(2, 2);
+    expect_ack(DMDSM_MSG_ARM, 2);
+    uint16_t values[8] = {100, 101, 101, 101, 65535, 65535, 65534, 65535};
+    for (int i = 0; i < 8; i++) {
+        B.now += 100;
+        shot(values[i], B.now - 5);
+    }
+    drain();
+    CHECK(n_msgs == 2);
+    struct dmdsm_waveform w;
+    CHECK(dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    CHECK(w.shot_id == 0 && w.n_average == 4 && w.samples_len == 128);
+    /* mean of 100,101,101,101 = 100.75 -> 101; odd samples +1 -> 101.75 -> 102 */
+    CHECK(w.samples[0] == 101 && w.samples[2] == 102);
+    CHECK(w.timestamp == 95 && w.trigger_phase == 10);
+    CHECK(dmdsm_unpack_waveform(msgs[1].payload, msgs[1].len, &w));
+    CHECK(w.shot_id == 1 && msgs[1].seq == 1);
+    CHECK((w.samples[0] | w.samples[1] << 8) == 65535); /* 65534.75 rounds up, no wrap */
+    CHECK(core.state == DMDSM_STATE_IDLE && B.disarms == 1);
+}
+
+static void test_u32_sums_do_not_overflow(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_average = 4096;
+    c.n_samples = 16;
+    c.sample_format = DMDSM_SAMPLE_FORMAT_U32_SUM;
+    set_config(1, &c);
+    arm(2, 1);
+    drain();
+    for (int i = 0; i < 4096; i++)
+        shot(65534, 0); /* odd samples are 65535 */
+    drain();
+    struct dmdsm_waveform w;
+    CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    const uint8_t *s = w.samples;
+    uint32_t s1 = (uint32_t)s[4] | (uint32_t)s[5] << 8 | (uint32_t)s[6] << 16 |
+                  (uint32_t)s[7] << 24;
+    CHECK(s1 == 4096u * 65535u && w.samples_len == 64);
+}
+
+static void test_busy_link_drops_whole_shots(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_samples = 256;
+    set_config(1, &c);
+    arm(2, 0);
+    drain();
+    B.busy = true; /* the link is stuck on one frame */
+    dmdsm_core_log(&core, 1, 0, "x"); /* occupies the link */
+    for (int i = 0; i < 10; i++)
+        shot(1000, 0);
+    CHECK(core.count.shots_dropped == 8); /* two slots filled, eight dropped */
+    B.busy = false;
+    drain();
+    CHECK(n_msgs == 3); /* log + two whole waveforms */
+    struct dmdsm_waveform w;
+    CHECK(dmdsm_unpack_waveform(msgs[2].payload, msgs[2].len, &w) && w.shot_id == 1);
+    shot(1000, 0);
+    drain();
+    CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    CHECK(w.shot_id == 10 && w.shots_dropped == 8); /* the gap and the counter agree */
+    struct dmdsm_status s = status(3);
+    CHECK(s.shots_dropped == 8 && s.shots_sent == 3 && s.triggers == 11);
+}
+
+static void test_disarm_discards_partial_average(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_average = 10;
+    set_config(1, &c);
+    arm(2, 0);
+    drain();
+    for (int i = 0; i < 5; i++)
+        shot(7, 0);
+    send(DMDSM_MSG_DISARM, 3, 0, NULL, 0);
+    expect_ack(DMDSM_MSG_DISARM, 3);
+    shot(7, 0); /* a late burst is ignored */
+    drain();
+    CHECK(n_msgs == 0 && core.state == DMDSM_STATE_IDLE && core.count.triggers == 5);
+}
+
+static void test_trigger_timeout(void)
+{
+    reset();
+    set_config(1, &good); /* 1000 ms at 1 MHz ticks */
+    arm(2, 5);
+    drain();
+    B.now += 999000;
+    dmdsm_core_poll(&core);
+    CHECK(core.state == DMDSM_STATE_ARMED);
+    B.now += 2000;
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(core.state == DMDSM_STATE_IDLE && core.count.no_trigger_timeouts == 1);
+    struct dmdsm_log l;
+    CHECK(n_msgs == 1 && dmdsm_unpack_log(msgs[0].payload, msgs[0].len, &l));
+    CHECK(l.code == DMDSM_ERROR_NO_TRIGGER && !(msgs[0].flags & DMDSM_FLAG_RESPONSE));
+}
+
+static void test_timestamps_survive_wrap(void)
+{
+    reset();
+    B.now = 0xFFFFFF00u;
+    dmdsm_core_poll(&core);
+    set_config(1, &good);
+    arm(2, 3);
+    drain();
+    B.now = 0xFFFFFFF8u;
+    shot(1, 0xFFFFFFF0u);
+    B.now = 0x00000100u; /* the 32-bit counter wrapped */
+    shot(1, 0x00000080u);
+    shot(1, 0x000000F0u);
+    drain();
+    struct dmdsm_waveform w[3];
+    memset(w, 0, sizeof w);
+    CHECK(n_msgs == 3);
+    for (size_t i = 0; i < 3 && i < n_msgs; i++)
+        dmdsm_unpack_waveform(msgs[i].payload, msgs[i].len, &w[i]);
+    CHECK(w[0].timestamp == 0xFFFFFFF0u);
+    CHECK(w[1].timestamp == 0x100000080ull && w[2].timestamp == 0x1000000F0ull);
+}
+
+static void test_overrun_is_counted_not_averaged(void)
+{
+    reset();
+    set_config(1, &good);
+    arm(2, 1);
+    drain();
+    static uint16_t s[DMDSM_CORE_MAX_SAMPLES];
+    dmdsm_core_capture_done(&core, s, 0, 0, true);
+    drain();
+    CHECK(n_msgs == 0 && core.count.adc_overruns == 1 && core.state == DMDSM_STATE_ARMED);
+    shot(5, 0);
+    drain();
+    struct dmdsm_waveform w;
+    CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    CHECK(w.adc_overruns == 1 && w.samples[0] == 5);
+}
+
+static void test_clock_sync(void)
+{
+    reset();
+    B.now = 12345;
+    struct dmdsm_clock_sync m = {.host_time_ns = 0x1122334455667788ull};
+    uint8_t p[8];
+    send(DMDSM_MSG_CLOCK_SYNC, 4, 0, p, dmdsm_pack_clock_sync(&m, p));
+    drain();
+    struct dmdsm_clock_sync_reply r;
+    CHECK(n_msgs == 1 && dmdsm_unpack_clock_sync_reply(msgs[0].payload, msgs[0].len, &r));
+    CHECK(r.host_time_ns == m.host_time_ns && r.device_ticks == 12345);
+}
+
+int main(void)
+{
+    test_ping_identify();
+    test_config_validation();
+    test_bad_frames();
+    test_retransmission_executes_once();
+    test_averaging_and_shot_ids();
+    test_u32_sums_do_not_overflow();
+    test_busy_link_drops_whole_shots();
+    test_disarm_discards_partial_average();
+    test_trigger_timeout();
+    test_timestamps_survive_wrap();
+    test_overrun_is_counted_not_averaged();
+    test_clock_sync();
+    if (failures) {
+        fprintf(stderr, "test_core: %d check(s) failed\n", failures);
+        return 1;
+    }
+    printf("test_core: all checks passed\n");
+    return 0;
+}

@@ -1,0 +1,69 @@
+"""A minimal command/response link for the conformance suite (the real client is dmdsm.host's)."""
+
+from __future__ import annotations
+
+import time
+
+import serial
+
+from dmdsm.protocol import FrameDecoder, Message, encode_frame
+
+
+class Link:
+    """Sends commands with fresh sequence numbers and collects responses and unsolicited frames."""
+
+    def __init__(self, url: str, baudrate: int = 2_000_000) -> None:
+        self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05)
+        self.dec = FrameDecoder(report_errors=True)
+        self.seq = 100
+        self.unsolicited: list[Message] = []
+        self.port.write(b"\x00")
+
+    def close(self) -> None:
+        """Close the port."""
+        self.port.close()
+
+    def pump(self, seconds: float = 0.0) -> list:
+        """Read for up to `seconds` (at least once) and return what was decoded."""
+        out = []
+        end = time.monotonic() + seconds
+        while True:
+            out += self.dec.feed(self.port.read(65536))
+            if time.monotonic() >= end:
+                return out
+
+    def send_raw(self, data: bytes) -> None:
+        """Write bytes as they are (for fault injection)."""
+        self.port.write(data)
+
+    def request(self, name: str, timeout: float = 3.0, seq: int | None = None,
+                **fields: object) -> Message:
+        """Send one command and return its response; unsolicited frames are kept."""
+        if seq is None:
+            self.seq = (self.seq + 1) & 0xFFFF
+            seq = self.seq
+        self.port.write(encode_frame(Message(name, seq=seq, **fields)))
+        end = time.monotonic() + timeout
+        response = None
+        while response is None and time.monotonic() < end:
+            for item in self.pump():
+                if not isinstance(item, Message):
+                    continue
+                if response is None and item.is_response and item.seq == seq:
+                    response = item
+                else:
+                    self.unsolicited.append(item)
+        if response is not None:
+            return response
+        raise TimeoutError(f"no response to {name} seq={seq} within {timeout} s")
+
+    def waveforms(self, n: int, timeout: float = 10.0) -> list[Message]:
+        """Collect n waveform messages (including any already received)."""
+        end = time.monotonic() + timeout
+        while len([m for m in self.unsolicited if m.name == "waveform"]) < n:
+            if time.monotonic() > end:
+                break
+            self.unsolicited += [m for m in self.pump() if isinstance(m, Message)]
+        got = [m for m in self.unsolicited if m.name == "waveform"]
+        self.unsolicited = [m for m in self.unsolicited if m.name != "waveform"]
+        return got

@@ -1,0 +1,31 @@
+/* C API of the PC build of the firmware core (libdmdsm_core.so), for the SIL emulator. */
+#ifndef DMDSM_PC_BOARD_H
+#define DMDSM_PC_BOARD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "dmdsm_spec.h" /* struct dmdsm_set_config */
+
+struct dmdsm_pc;
+
+/* a new device at tick counter `ticks`; NULL if out of memory */
+struct dmdsm_pc *dmdsm_pc_new(const char *name, uint32_t tick_hz, uint32_t adc_rate_hz,
+                              uint16_t max_samples, uint32_t ticks);
+void dmdsm_pc_free(struct dmdsm_pc *d);
+/* advance the device clock (32-bit, wraps) and run the main loop once */
+void dmdsm_pc_set_ticks(struct dmdsm_pc *d, uint32_t ticks);
+/* bytes from the host */
+void dmdsm_pc_rx(struct dmdsm_pc *d, const uint8_t *p, size_t n);
+/* up to cap bytes the device sends; 0 when its queues are empty */
+size_t dmdsm_pc_tx(struct dmdsm_pc *d, uint8_t *out, size_t cap);
+/* 1 if waiting for a laser edge (and the configuration of that burst) */
+int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg);
+/* one burst after an edge at edge_ticks: cfg.n_samples samples */
+void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
+                      uint16_t phase, int overrun);
+void dmdsm_pc_poll(struct dmdsm_pc *d);
+/* enum dmdsm_state */
+uint8_t dmdsm_pc_state(const struct dmdsm_pc *d);
+
+#endif

@@ -10,7 +10,8 @@ STAMPS := build/stamps
 HOSTBUILD := build/host
 FUZZ_SECONDS ?= 20
 
-APT_PACKAGES := gcc make clang libclang-rt-14-dev cppcheck
+APT_PACKAGES := gcc make clang libclang-rt-14-dev cppcheck gcc-arm-none-eabi \
+  libnewlib-arm-none-eabi qemu-system-arm
 CFLAGS_HOST := -std=c11 -Wall -Wextra -Werror -pedantic -g -O1
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 PROTO_C := protocol/c/dmdsm_frame.c protocol/c/dmdsm_spec.c
@@ -18,7 +19,7 @@ PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
 CORE_C := $(wildcard firmware/stm32/core/*.c)
 CORE_H := $(wildcard firmware/stm32/core/*.h)
 
-.PHONY: all deps venv build test test-c fuzz lint gen-check gen bench demo clean
+.PHONY: all deps venv build firmware test test-c fuzz lint gen-check gen bench demo clean
 
 all: build
 
@@ -67,7 +68,13 @@ $(HOSTBUILD)/fuzz_decoder: $(PROTO_C) $(PROTO_H) tests/c/fuzz_decoder.c | $(STAM
 	clang -std=c11 -Wall -Wextra -Werror -g -O1 -fsanitize=fuzzer,address,undefined \
 	  -Iprotocol/c $(PROTO_C) tests/c/fuzz_decoder.c -o $@
 
-build: deps $(HOSTBUILD)/test_frame $(HOSTBUILD)/test_core $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
+# every firmware build: the NUCLEO, QEMU's Cortex-M7 and the PC library for the SIL
+firmware: $(STAMPS)/apt
+	$(MAKE) -C firmware/stm32 BOARD=nucleo_h743zi
+	$(MAKE) -C firmware/stm32 BOARD=qemu_an500
+	$(MAKE) -C firmware/stm32 BOARD=pc
+
+build: deps firmware $(HOSTBUILD)/test_frame $(HOSTBUILD)/test_core $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
 
 ## ---------------------------------------------------------------- checks
 gen: deps
@@ -82,6 +89,9 @@ lint: deps
 	$(PY) -m ruff check protocol host hil_sim tests bench
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
 	  --std=c11 --inline-suppr -Iprotocol/c -Ifirmware/stm32/core protocol/c firmware/stm32/core tests/c
+	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
+	  --std=c11 --inline-suppr --suppress=missingIncludeSystem -Iprotocol/c -Ifirmware/stm32/core \
+	  -Ifirmware/stm32/board/common -Ifirmware/stm32/board/nucleo_h743zi firmware/stm32/board
 
 test-c: build
 	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_frame protocol/vectors/golden.txt
@@ -105,3 +115,4 @@ demo: deps
 
 clean:
 	rm -rf build out
+	$(MAKE) -C firmware/stm32 clean

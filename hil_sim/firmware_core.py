@@ -55,7 +55,7 @@ def _load() -> ctypes.CDLL:
 
 
 class FirmwareCore:
-    """One emulated sensor board running the real firmware core; the caller owns time and physics."""
+    """One emulated sensor board running the real firmware core; the caller owns time, physics."""
 
     _lib: ctypes.CDLL | None = None
 

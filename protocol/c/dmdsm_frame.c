@@ -3,8 +3,16 @@
 
 #include <string.h>
 
+#ifdef DMDSM_BOARD_CRC32
+/* a board with a CRC unit names its zlib-compatible function here */
+uint32_t DMDSM_BOARD_CRC32(uint32_t crc, const uint8_t *p, size_t n);
+#endif
+
 uint32_t dmdsm_crc32(uint32_t crc, const uint8_t *p, size_t n)
 {
+#ifdef DMDSM_BOARD_CRC32
+    return DMDSM_BOARD_CRC32(crc, p, n);
+#endif
     uint32_t c = crc ^ 0xFFFFFFFFu;
     while (n--)
         c = dmdsm_crc32_table[(c ^ *p++) & 0xFFu] ^ (c >> 8);

@@ -1,0 +1,158 @@
+/* NUCLEO-H743ZI(2) board: main loop, board ops for the core, LEDs, CRC unit, vector table. */
+#include <string.h>
+
+#include "armv7m.h"
+#include "core.h"
+#include "h743_regs.h"
+#include "nucleo.h"
+#include "startup.h"
+
+extern uint32_t _estack;
+
+/* in AXI SRAM (NOLOAD; dmdsm_core_init clears it): its frames are sent by DMA */
+static struct dmdsm_core core __attribute__((section(".axi_bss"), aligned(32)));
+static struct dmdsm_board_info info;
+static char board_name[32];
+
+void board_early_init(void)
+{
+    if ((DBGMCU_IDCODE >> 16) == REV_ID_Y)
+        AXI_TARG7_FN_MOD = 1u; /* ES0392 2.2.9 before any AXI SRAM access */
+}
+
+static void caches_enable(void)
+{
+    dsb();
+    isb();
+    SCB_ICIALLU = 0;
+    SCB_CCR |= SCB_CCR_IC;
+    SCB_CSSELR = 0; /* L1 data cache */
+    dsb();
+    uint32_t ccsidr = SCB_CCSIDR;
+    uint32_t sets = ((ccsidr >> 13) & 0x7FFFu) + 1u;
+    uint32_t ways = ((ccsidr >> 3) & 0x3FFu) + 1u;
+    for (uint32_t s = 0; s < sets; s++)
+        for (uint32_t w = 0; w < ways; w++)
+            SCB_DCISW = (s << 5) | (w << 30);
+    dsb();
+    SCB_CCR |= SCB_CCR_DC;
+    dsb();
+    isb();
+}
+
+/* LD1 green PB0, LD2 blue PB7, LD3 red PB14 */
+static const unsigned led_pin[3] = {0, 7, 14};
+
+void led_set(unsigned led, bool on)
+{
+    GPIOB->BSRR = on ? 1u << led_pin[led] : 1u << (led_pin[led] + 16u);
+}
+
+static void leds_init(void)
+{
+    RCC->AHB4ENR |= RCC_AHB4ENR_GPIOBEN;
+    (void)RCC->AHB4ENR;
+    for (unsigned i = 0; i < 3; i++)
+        GPIOB->MODER = (GPIOB->MODER & ~(3u << (2 * led_pin[i]))) | (1u << (2 * led_pin[i]));
+}
+
+/* zlib's CRC-32 on the CRC unit: reflected in (by byte) and out, continued via INIT */
+uint32_t board_crc32(uint32_t crc, const uint8_t *p, size_t n)
+{
+    uint32_t state = ~crc;
+    __asm__("rbit %0, %1" : "=r"(state) : "r"(state));
+    CRC_UNIT->INIT = state;
+    CRC_UNIT->CR = CRC_CR_REV_IN_BYTE | CRC_CR_REV_OUT | CRC_CR_RESET;
+    while (n--)
+        *(volatile uint8_t *)&CRC_UNIT->DR = *p++;
+    return ~CRC_UNIT->DR;
+}
+
+static void op_arm(void *ctx, const struct dmdsm_set_config *cfg)
+{
+    (void)ctx;
+    capture_arm(cfg);
+}
+
+static void op_disarm(void *ctx)
+{
+    (void)ctx;
+    capture_disarm();
+}
+
+static uint32_t op_now(void *ctx)
+{
+    (void)ctx;
+    return capture_now();
+}
+
+static void op_tx_start(void *ctx, const uint8_t *p, size_t n)
+{
+    (void)ctx;
+    serial_tx_start(p, n);
+}
+
+static bool op_tx_busy(void *ctx)
+{
+    (void)ctx;
+    return serial_tx_busy();
+}
+
+static const struct dmdsm_board_ops ops = {NULL, op_arm, op_disarm, op_now, op_tx_start,
+                                           op_tx_busy};
+
+int main(void)
+{
+    clock_init();
+    caches_enable();
+    leds_init();
+    RCC->AHB4ENR |= RCC_AHB4ENR_CRCEN;
+    CRC_UNIT->POL = 0x04C11DB7u;
+    serial_init(DMDSM_BAUD);
+    capture_init();
+    strcpy(board_name, clocks.rev_v ? "NUCLEO-H743ZI rev V" : "NUCLEO-H743ZI rev Y");
+    info = (struct dmdsm_board_info){board_name, clocks.timclk_hz, capture_adc_rate_hz(),
+                                     8192u};
+    dmdsm_core_init(&core, &ops, &info);
+    struct fault_record f;
+    bool fault = fault_take(&f);
+    if (fault) {
+        char text[FAULT_TEXT_SIZE];
+        fault_format(&f, text);
+        dmdsm_core_log(&core, DMDSM_LOG_LEVEL_ERROR, DMDSM_ERROR_INTERNAL, text);
+    }
+    uint8_t rx[64];
+    for (;;) {
+        size_t n = serial_read(rx, sizeof rx);
+        if (n)
+            dmdsm_core_rx(&core, rx, n);
+        const uint16_t *samples;
+        uint32_t edge;
+        uint16_t phase;
+        bool overrun;
+        if (capture_poll(&samples, &edge, &phase, &overrun))
+            dmdsm_core_capture_done(&core, samples, edge, phase, overrun);
+        dmdsm_core_poll(&core);
+        /* LEDs: green heartbeat 1 Hz, blue while armed, red after a fault or error */
+        led_set(0, (capture_now() / (info.tick_hz / 2u)) & 1u);
+        led_set(1, core.state == DMDSM_STATE_ARMED);
+        led_set(2, fault || core.last_error == DMDSM_ERROR_ADC_OVERRUN ||
+                       core.last_error == DMDSM_ERROR_INTERNAL);
+    }
+}
+
+void TIM2_IRQHandler(void);
+void USART3_IRQHandler(void);
+
+/* 16 system exceptions + 150 device interrupts (RM0433 Table 143) */
+__attribute__((section(".isr_vector"), used)) static void (*const vectors[16 + N_IRQ])(void) = {
+    [0] = (void (*)(void))&_estack,
+    [1] = Reset_Handler,
+    [2] = Default_Handler,
+    [3] = HardFault_Handler,
+    [4 ... 16 + IRQ_TIM2 - 1] = Default_Handler,
+    [16 + IRQ_TIM2] = TIM2_IRQHandler,
+    [16 + IRQ_TIM2 + 1 ... 16 + IRQ_USART3 - 1] = Default_Handler,
+    [16 + IRQ_USART3] = USART3_IRQHandler,
+    [16 + IRQ_USART3 + 1 ... 16 + N_IRQ - 1] = Default_Handler,
+};

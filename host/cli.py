@@ -8,6 +8,7 @@ import sys
 from dmdsm.protocol import tool as protocol_tool
 
 from . import __version__
+from . import flash as flash_cmd
 
 
 class CliError(Exception):
@@ -22,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"dmdsm {__version__}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
     protocol_tool.add_parser(sub)
+    flash_cmd.add_parser(sub)
     d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")
@@ -39,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (CliError, protocol_tool.ToolError) as e:
+    except (CliError, protocol_tool.ToolError, flash_cmd.FlashError) as e:
         print(f"dmdsm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -106,8 +106,9 @@ fuzz: build
 test: deps build gen-check lint test-c fuzz
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q
 
-bench: deps
+bench: deps firmware
 	$(PY) bench/protocol.py
+	$(PY) bench/firmware.py
 
 ## ---------------------------------------------------------------- demo
 demo: deps

@@ -86,7 +86,7 @@ gen-check: deps
 	$(PY) -m dmdsm.protocol.gen_docs --check
 
 lint: deps
-	$(PY) -m ruff check protocol host hil_sim tests bench
+	$(PY) -m ruff check protocol host hil_sim tests bench firmware/marlin_patch
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
 	  --std=c11 --inline-suppr -Iprotocol/c -Ifirmware/stm32/core protocol/c firmware/stm32/core tests/c
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \

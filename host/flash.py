@@ -30,6 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--tool", choices=sorted(TOOLS), default="openocd",
                    help="flashing tool (default openocd, board/st_nucleo_h743zi.cfg)")
     s.set_defaults(func=cmd_flash_stm32)
+    m = psub.add_parser("marlin", help="the stage board (Chiron, ATmega2560) with avrdude")
+    m.add_argument("hex", type=Path, help="firmware .hex built from the patched Marlin")
+    m.add_argument("--port", required=True, help="serial port of the board, e.g. /dev/ttyUSB0")
+    m.set_defaults(func=cmd_flash_marlin)
 
 
 def cmd_flash_stm32(args: argparse.Namespace) -> int:
@@ -50,4 +54,40 @@ def cmd_flash_stm32(args: argparse.Namespace) -> int:
         last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
         raise FlashError(f"{program} failed: {last[0]}")
     print(f"flashed firmware/stm32/build/nucleo_h743zi/firmware.elf with {program}")
+    return 0
+
+
+AVRDUDE_HINTS = (  # (text in avrdude's output, what to tell the user)
+    ("permission denied", "no permission on {port}: add yourself to the dialout group "
+                          "(sudo usermod -aG dialout $USER) and log in again"),
+    ("no such file or directory", "{port} does not exist: check the cable; `dmdsm` lists "
+                                  "ports with `python -m serial.tools.list_ports`"),
+    ("device or resource busy", "{port} is in use: close OctoPrint, Pronterface or `dmdsm` "
+                                "sessions that hold it"),
+    ("not in sync", "the board does not answer on {port}: wrong port, or the bootloader did "
+                    "not start (press reset just before flashing)"),
+    ("timeout", "the board does not answer on {port}: wrong port, or the bootloader did not "
+                "start (press reset just before flashing)"),
+    ("verification error", "flash verification failed: retry; if it persists the board's "
+                           "flash or bootloader is damaged"),
+)
+
+
+def cmd_flash_marlin(args: argparse.Namespace) -> int:
+    """Flash a Marlin .hex to the Chiron's ATmega2560 with avrdude (wiring/stk500v2 bootloader)."""
+    if not args.hex.is_file():
+        raise FlashError(f"{args.hex} not found: build the patched Marlin first (docs/marlin.md)")
+    if shutil.which("avrdude") is None:
+        raise FlashError("avrdude not found: apt-get install avrdude")
+    cmd = ["avrdude", "-p", "atmega2560", "-c", "wiring", "-P", args.port, "-b", "115200",
+           "-D", "-U", f"flash:w:{args.hex}:i"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode:
+        out = (r.stdout + r.stderr).lower()
+        for needle, hint in AVRDUDE_HINTS:
+            if needle in out:
+                raise FlashError(hint.format(port=args.port))
+        last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
+        raise FlashError(f"avrdude failed: {last[0]}")
+    print(f"flashed {args.hex} to the ATmega2560 on {args.port}")
     return 0

@@ -8,7 +8,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(tmp_path, *args, fake_tool=None):
+def run(tmp_path, *args, fake_tool=None, target="stm32"):
     bindir = tmp_path / "bin"
     bindir.mkdir(exist_ok=True)
     for tool in ("make", "arm-none-eabi-gcc", "arm-none-eabi-objcopy", "arm-none-eabi-size"):
@@ -20,7 +20,7 @@ def run(tmp_path, *args, fake_tool=None):
         (bindir / name).write_text(script)
         (bindir / name).chmod(0o755)
     env = {**os.environ, "PATH": str(bindir)}  # only the tools linked above
-    return subprocess.run([sys.executable, "-m", "dmdsm.host", "flash", "stm32", *args],
+    return subprocess.run([sys.executable, "-m", "dmdsm.host", "flash", target, *args],
                           capture_output=True, text=True, env=env, cwd=ROOT)
 
 
@@ -47,3 +47,31 @@ def test_flash_runs_the_tool_on_the_built_elf(tmp_path):
     args = log.read_text()
     assert "board/st_nucleo_h743zi.cfg" in args
     assert "program build/nucleo_h743zi/firmware.elf verify reset exit" in args
+
+
+def test_flash_marlin_explains_avrdude_failures(tmp_path):
+    hexfile = tmp_path / "marlin.hex"
+    hexfile.write_text(":00000001FF\n")
+    cases = [
+        ("avrdude: ser_open(): can't open device \"/dev/ttyUSB9\": Permission denied",
+         "no permission on /dev/ttyUSB9: add yourself to the dialout group"),
+        ("avrdude: stk500v2_ReceiveMessage(): timeout", "the board does not answer"),
+    ]
+    for i, (msg, hint) in enumerate(cases):
+        d = tmp_path / f"case{i}"
+        d.mkdir()
+        fake = f"#!/bin/sh\ncat >&2 <<'MSG'\n{msg}\nMSG\nexit 1\n"
+        r = run(d, "--port", "/dev/ttyUSB9", str(hexfile), fake_tool=("avrdude", fake),
+                target="marlin")
+        assert r.returncode == 2 and hint in r.stderr and "Traceback" not in r.stderr
+
+
+def test_flash_marlin_passes_the_right_avrdude_arguments(tmp_path):
+    hexfile = tmp_path / "marlin.hex"
+    hexfile.write_text(":00000001FF\n")
+    log = tmp_path / "args.txt"
+    r = run(tmp_path, "--port", "/dev/ttyUSB0", str(hexfile),
+            fake_tool=("avrdude", f"#!/bin/sh\necho \"$@\" > {log}\n"), target="marlin")
+    assert r.returncode == 0, r.stderr
+    assert log.read_text().split() == ["-p", "atmega2560", "-c", "wiring", "-P", "/dev/ttyUSB0",
+                                       "-b", "115200", "-D", "-U", f"flash:w:{hexfile}:i"]

@@ -53,14 +53,14 @@ def test_flash_marlin_explains_avrdude_failures(tmp_path):
     hexfile = tmp_path / "marlin.hex"
     hexfile.write_text(":00000001FF\n")
     cases = [
-        ("avrdude: ser_open(): can't open device \"/dev/ttyUSB9\": Permission denied",
+        ("avrdude: ser_open(): can't open device /dev/ttyUSB9: Permission denied",
          "no permission on /dev/ttyUSB9: add yourself to the dialout group"),
         ("avrdude: stk500v2_ReceiveMessage(): timeout", "the board does not answer"),
     ]
     for i, (msg, hint) in enumerate(cases):
         d = tmp_path / f"case{i}"
         d.mkdir()
-        fake = f"#!/bin/sh\ncat >&2 <<'MSG'\n{msg}\nMSG\nexit 1\n"
+        fake = f'#!/bin/sh\necho "{msg}" >&2\nexit 1\n'
         r = run(d, "--port", "/dev/ttyUSB9", str(hexfile), fake_tool=("avrdude", fake),
                 target="marlin")
         assert r.returncode == 2 and hint in r.stderr and "Traceback" not in r.stderr

@@ -9,6 +9,7 @@ from dmdsm.protocol import tool as protocol_tool
 
 from . import __version__
 from . import flash as flash_cmd
+from . import sim_cmd
 
 
 class CliError(Exception):
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
     protocol_tool.add_parser(sub)
     flash_cmd.add_parser(sub)
+    sim_cmd.add_parser(sub)
     d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")

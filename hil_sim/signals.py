@@ -1,0 +1,152 @@
+"""Transducer waveforms for one laser shot: OA (one way) and US (round trip) arrivals, noise, ADC.
+
+Every waveform holds what one laser pulse produces (paper §III-1): the transmitter's direct
+coupling ("bang") at the start, the optoacoustic arrival at t0_OA + d/c when the surface
+absorbs light, and the ultrasound echo at t0_US + 2d/c when it reflects sound. Materials set
+amplitude, spectrum, wall ringing and availability. The sensor's own numbers are not published;
+every default here is a documented assumption (docs/sim.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .scene import Hit
+
+
+def speed_of_sound_mm_us(temperature_c: float) -> float:
+    """Speed of sound in dry air, c = 331.3 sqrt(1 + T/273.15) m/s, in mm/us."""
+    return 0.3313 * np.sqrt(1.0 + temperature_c / 273.15)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Acoustic and optical behaviour of one material (amplitudes in ADC counts at 10 mm)."""
+
+    oa: bool                 # absorbs the laser: an OA arrival exists (not transparent/mirror)
+    us: bool                 # reflects sound: a US echo exists (not porous)
+    oa_amp: float = 3000.0
+    oa_fc_mhz: float = 1.2   # centre frequency of the OA pulse (absorption depth)
+    oa_bw: float = 0.8       # fractional bandwidth
+    us_amp: float = 6000.0
+    us_fc_scale: float = 1.0  # echo spectrum shift (surface roughness low-passes it)
+    ring_fc_mhz: float = 0.0  # wall resonance of thin or hollow objects (0: solid)
+    ring_gain: float = 0.0
+    ring_decay_us: float = 3.0
+    variability: float = 0.05  # per-shot spread of amplitude and spectrum
+    roughness_oa_mm: float = 0.06  # surface/spot range scatter, Laplace scale (OA)
+    roughness_us_mm: float = 0.19  # Gaussian sigma (US)
+
+
+#: defaults; apple is deliberately close to plastic but far more variable (paper Fig. 5)
+MATERIALS: dict[str, Material] = {
+    "graphite": Material(oa=True, us=True, oa_amp=9000, oa_fc_mhz=1.6, us_amp=1500,
+                         variability=0.05),
+    "aluminium": Material(oa=True, us=True, oa_amp=2500, oa_fc_mhz=1.1, us_amp=7000,
+                          ring_fc_mhz=0.55, ring_gain=0.25, ring_decay_us=6.0),
+    "steel": Material(oa=False, us=True, us_amp=7500, ring_fc_mhz=0.75, ring_gain=0.35,
+                      ring_decay_us=8.0),
+    "glass": Material(oa=False, us=True, us_amp=6500, us_fc_scale=1.05, ring_fc_mhz=0.9,
+                      ring_gain=0.5, ring_decay_us=5.0),
+    "plastic": Material(oa=True, us=True, oa_amp=3500, oa_fc_mhz=0.9, us_amp=4500,
+                        us_fc_scale=0.95, ring_fc_mhz=0.35, ring_gain=0.15, ring_decay_us=2.0,
+                        variability=0.10),
+    "apple": Material(oa=True, us=True, oa_amp=3200, oa_fc_mhz=0.85, us_amp=4000,
+                      us_fc_scale=0.9, ring_fc_mhz=0.35, ring_gain=0.12, ring_decay_us=1.5,
+                      variability=0.30),
+    "paper": Material(oa=True, us=True, oa_amp=4000, oa_fc_mhz=0.7, us_amp=3000,
+                      us_fc_scale=0.8, variability=0.12),
+    "foam": Material(oa=True, us=False, oa_amp=2000, oa_fc_mhz=0.5, oa_bw=1.0,
+                     variability=0.15),
+}
+
+
+@dataclass
+class SensorModel:
+    """The transducer chain: delays, pulse shapes, noise and the ADC (counts)."""
+
+    temperature_c: float = 20.0
+    t0_oa_us: float = 2.0     # trigger-to-OA-emission delay (electronics, transducer)
+    t0_us_us: float = 4.0     # trigger-to-US-emission delay (laser-driven transmitter)
+    us_fc_mhz: float = 1.0    # transducer centre frequency
+    us_bw: float = 0.6        # fractional -6 dB bandwidth
+    bang_amp: float = 2500.0  # transmitter direct coupling at t0_US
+    bang_decay_us: float = 2.0
+    spread_mm: float = 20.0   # amplitude ~ 1 / (1 + d / spread_mm)
+    us_angle_deg: float = 12.0  # US echo falls as exp(-(angle / us_angle)^2): specular
+    noise_counts: float = 20.0
+    spike_prob: float = 0.002   # interference spikes per shot
+    spike_amp: float = 6000.0
+    baseline: float = 32768.0
+    materials: dict[str, Material] = field(default_factory=lambda: dict(MATERIALS))
+
+    @property
+    def c_mm_us(self) -> float:
+        """Speed of sound at the model's air temperature (mm/us)."""
+        return speed_of_sound_mm_us(self.temperature_c)
+
+
+def _pulse(t_us: np.ndarray, fc: float, bw: float) -> np.ndarray:
+    """Gaussian-modulated cosine, unit peak: the transducer's band-limited arrival."""
+    sigma = np.sqrt(2 * np.log(2)) / (np.pi * bw * fc)  # -6 dB fractional bandwidth
+    return np.exp(-0.5 * (t_us / sigma) ** 2) * np.cos(2 * np.pi * fc * t_us)
+
+
+def roughness(hit: Hit, scale_mm: float, kind: str, seed: int) -> float:
+    """Range scatter of the surface under the spot: fixed per surface point (0.2 mm cells), so
+    averaging shots does not remove it; Laplace for OA, Gaussian for US (mm)."""
+    if hit.local is None or scale_mm == 0:
+        return 0.0
+    cell = np.round(np.asarray(hit.local) / 0.2).astype(int).tobytes()
+    h = hashlib.blake2b(cell + f"{hit.obj}:{kind}:{seed}".encode(), digest_size=8).digest()
+    rng = np.random.default_rng(int.from_bytes(h, "little"))
+    return float(rng.laplace(0, scale_mm) if kind == "oa" else rng.normal(0, scale_mm))
+
+
+def arrival_times_us(d_mm: float, model: SensorModel) -> tuple[float, float]:
+    """(OA, US) arrival times after the trigger for a target at d mm (no scatter)."""
+    c = model.c_mm_us
+    return model.t0_oa_us + d_mm / c, model.t0_us_us + 2 * d_mm / c
+
+
+def synthesize(hit: Hit, model: SensorModel, t_us: np.ndarray, rng: np.random.Generator,
+               seed: int = 0) -> np.ndarray:
+    """Analog waveform (counts about 0) at sample times t_us after the laser edge."""
+    x = model.bang_amp * _pulse(t_us - model.t0_us_us, model.us_fc_mhz, model.us_bw)
+    x *= np.exp(-np.clip(t_us - model.t0_us_us, 0, None) / model.bang_decay_us)
+    mat = model.materials.get(hit.material) if hit.material else None
+    if mat is not None and hit.overlap > 0:
+        spread = 1.0 / (1.0 + hit.d / model.spread_mm) * (1 + 10 / model.spread_mm)
+        var = mat.variability
+        c = model.c_mm_us
+        if mat.oa:
+            d = hit.d + roughness(hit, mat.roughness_oa_mm, "oa", seed)
+            amp = mat.oa_amp * hit.overlap * spread * np.sqrt(hit.cos_incidence)
+            amp *= rng.lognormal(0, var)
+            fc = mat.oa_fc_mhz * (1 + rng.normal(0, var / 3))
+            x += amp * _pulse(t_us - (model.t0_oa_us + d / c), fc, mat.oa_bw)
+        if mat.us:
+            d = hit.d + roughness(hit, mat.roughness_us_mm, "us", seed)
+            angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
+            amp = mat.us_amp * hit.overlap * spread ** 2 * np.exp(-(angle / model.us_angle_deg) ** 2)
+            amp *= rng.lognormal(0, var)
+            fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, var / 3))
+            tau = t_us - (model.t0_us_us + 2 * d / c)
+            echo = _pulse(tau, fc, model.us_bw)
+            if mat.ring_gain:
+                ring = np.where(tau > 0, np.exp(-tau / mat.ring_decay_us), 0.0)
+                echo += mat.ring_gain * (1 + rng.normal(0, var)) * ring * np.sin(
+                    2 * np.pi * mat.ring_fc_mhz * tau)
+            x += amp * echo
+    x += rng.normal(0, model.noise_counts, t_us.shape)
+    if rng.random() < model.spike_prob:
+        x[rng.integers(0, len(x))] += model.spike_amp * rng.choice([-1, 1])
+    return x
+
+
+def to_adc(x: np.ndarray, model: SensorModel) -> np.ndarray:
+    """16-bit ADC: offset to mid-scale, quantise, clip."""
+    return np.clip(np.rint(x + model.baseline), 0, 65535).astype(np.uint16)

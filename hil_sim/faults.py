@@ -1,4 +1,4 @@
-"""Fault injection on the serial links: bit flips, dropped and inserted bytes, stalls, disconnects."""
+"""Fault injection on the serial links: flipped, dropped, inserted bytes; stalls; disconnects."""
 
 from __future__ import annotations
 

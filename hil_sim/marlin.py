@@ -1,4 +1,4 @@
-"""Marlin stage-board emulator: the serial dialect of the patched Marlin (docs/marlin.md) over bytes.
+"""Marlin stage-board emulator: the patched Marlin's serial dialect (docs/marlin.md) over bytes.
 
 Driven by simulated time: `receive(data, now)` takes bytes from the host into a 128-byte RX
 ring (bytes that do not fit are lost, as on the ATmega2560), `step(now)` runs the main loop

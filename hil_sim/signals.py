@@ -131,7 +131,8 @@ def synthesize(hit: Hit, model: SensorModel, t_us: np.ndarray, rng: np.random.Ge
         if mat.us:
             d = hit.d + roughness(hit, mat.roughness_us_mm, "us", seed)
             angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
-            amp = mat.us_amp * hit.overlap * spread ** 2 * np.exp(-(angle / model.us_angle_deg) ** 2)
+            amp = mat.us_amp * hit.overlap * spread ** 2
+            amp *= np.exp(-(angle / model.us_angle_deg) ** 2)
             amp *= rng.lognormal(0, var)
             fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, var / 3))
             tau = t_us - (model.t0_us_us + 2 * d / c)

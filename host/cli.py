@@ -7,9 +7,8 @@ import sys
 
 from dmdsm.protocol import tool as protocol_tool
 
-from . import __version__
+from . import __version__, sim_cmd
 from . import flash as flash_cmd
-from . import sim_cmd
 
 
 class CliError(Exception):

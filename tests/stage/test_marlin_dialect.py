@@ -1,0 +1,105 @@
+"""Marlin serial dialect conformance; runs against hil_sim or, with DMDSM_STAGE_PORT, a real board."""
+
+import re
+
+from dmdsm.marlin_patch import load_machine
+
+OK = re.compile(r"^ok N(\d+) P(\d+) B(\d+)$")
+LIMITS = load_machine()
+
+
+def test_numbered_lines_get_advanced_ok(stage):
+    replies = stage.send("G90")
+    m = OK.match(replies[-1])
+    assert m and int(m.group(1)) == stage.n
+    assert int(m.group(3)) <= LIMITS.bufsize and int(m.group(2)) < LIMITS.block_buffer_size
+
+
+def test_checksum_error_asks_for_the_same_line_again(stage):
+    stage.send("G90")
+    stage.raw(stage.numbered("G91", good_checksum=False))
+    replies = stage.until_ok()
+    assert replies[0] == f"Error:checksum mismatch, Last Line: {stage.n - 1}"
+    assert replies[1] == f"Resend: {stage.n}" and replies[2] == "ok"
+    stage.raw(stage.numbered("G90", n=stage.n))  # the resend
+    assert OK.match(stage.until_ok()[-1])
+
+
+def test_line_number_gap_and_missing_checksum_are_errors(stage):
+    stage.send("G90")
+    last = stage.n
+    stage.raw(f"N{last + 5} G90*{0}\n")
+    replies = stage.until_ok()
+    assert replies[:2] == [f"Error:Line Number is not Last Line Number+1, Last Line: {last}",
+                           f"Resend: {last + 1}"]
+    stage.raw(f"N{last + 1} G90\n")
+    replies = stage.until_ok()
+    assert replies[:2] == [f"Error:No Checksum with line number, Last Line: {last}",
+                           f"Resend: {last + 1}"]
+
+
+def test_a_repeated_line_gets_no_reply(stage):
+    stage.send("G90")
+    stage.raw(stage.numbered("G90", n=stage.n))
+    assert [x for x in stage.lines(0.5) if x] == []
+    assert OK.match(stage.send("G90")[-1])
+
+
+def test_unknown_commands(stage):
+    replies = stage.send("G123 X1")
+    assert replies[0] == 'echo:Unknown command: "G123 X1"' and OK.match(replies[-1])
+
+
+def test_m115_reports_four_axes_and_host_capabilities(stage):
+    replies = stage.send("M115")
+    assert "AXIS_COUNT:4" in replies[0] and "EXTRUDER_COUNT:0" in replies[0]
+    assert "Cap:EMERGENCY_PARSER:1" in replies and "Cap:AUTOREPORT_POS:1" in replies
+
+
+def _pos(line):
+    return {k: float(v) for k, v in re.findall(r"([XYZA]):(-?\d+\.\d+)", line.split("Count")[0])}
+
+
+def test_homing_then_absolute_moves_and_m114(stage):
+    stage.send("G28", timeout=60)
+    stage.send("G90")
+    stage.send("G1 X20 Y30 Z5 F6000")
+    stage.send("M400", timeout=60)
+    report = stage.send("M114")[0]
+    assert _pos(report) == {"X": 20.0, "Y": 30.0, "Z": 5.0, "A": _pos(report)["A"]}
+    counts = dict(re.findall(r"([XYZA]):(-?\d+)", report.split("Count")[1]))
+    assert int(counts["Y"]) == round((30 - LIMITS.min_pos[1]) * LIMITS.steps_per_unit[1])
+
+
+def test_turntable_axis_a_in_degrees_with_busy_keepalive(stage):
+    stage.send("G92 A0")
+    stage.send("G91")
+    stage.send(f"G1 A{LIMITS.max_feedrate[3] * 5:.0f} F{LIMITS.max_feedrate[3] * 60:.0f}")
+    replies = stage.send("M400", timeout=60)
+    assert replies.count("echo:busy: processing") >= 1
+    stage.send("G90")
+    report = stage.send("M114")[0]
+    target = LIMITS.max_feedrate[3] * 5
+    assert _pos(report)["A"] == target
+    counts = dict(re.findall(r"([XYZA]):(-?\d+)", report.split("Count")[1]))
+    assert int(counts["A"]) == round(target * LIMITS.steps_per_unit[3])
+
+
+def test_quick_stop_leaves_the_table_part_way(stage):
+    stage.send("G92 A0")
+    stage.send(f"G1 A3600 F{LIMITS.max_feedrate[3] * 60:.0f}")
+    stage.lines(1.0 / stage.speed)
+    mid = stage.send("M114 R")[0]
+    assert 0 < _pos(mid)["A"] < 3600
+    stage.raw("M410\n")
+    stage.until_ok()
+    report = stage.send("M114")[0]
+    assert 0 < _pos(report)["A"] < 3600
+
+
+def test_m154_auto_reports_without_ok(stage):
+    stage.send("M154 S1")
+    lines = stage.lines(2.5 / stage.speed + 0.3)
+    reports = [x for x in lines if x.startswith("X:")]
+    assert len(reports) >= 2 and not any(x.startswith("ok") for x in lines)
+    stage.send("M154 S0")

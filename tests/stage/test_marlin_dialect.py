@@ -1,4 +1,4 @@
-"""Marlin serial dialect conformance; runs against hil_sim or, with DMDSM_STAGE_PORT, a real board."""
+"""Marlin serial dialect conformance: hil_sim, or a real board with DMDSM_STAGE_PORT."""
 
 import re
 

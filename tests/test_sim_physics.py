@@ -113,3 +113,11 @@ def test_no_oa_on_glass_or_steel_and_no_us_on_foam():
         e_us = np.abs(x[np.abs(t_us - us) < 2]).max()
         assert (e_oa > 100) == has_oa, material
         assert (e_us > 100) == has_us, material
+
+
+def test_default_noise_gives_the_papers_ranging_error_with_ideal_processing():
+    from dmdsm.sim.calibrate_noise import depth_errors, summary
+
+    s = summary(depth_errors(n_points=120, seed=5))
+    assert 0.045 < s["oa"][0] < 0.075 and 0.04 < s["oa"][1] < 0.08    # paper 0.06 +/- 0.06
+    assert 0.12 < s["us"][0] < 0.18 and 0.08 < s["us"][1] < 0.15      # paper 0.15 +/- 0.11

@@ -1,0 +1,82 @@
+"""`dmdsm sim` as a user runs it: two ports by name, both boards answer, Ctrl-C stops it."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import serial
+
+from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
+
+
+def start(*args):
+    p = subprocess.Popen([sys.executable, "-m", "dmdsm.host", "sim", "--json", *args],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ports = json.loads(p.stdout.readline())
+    return p, ports
+
+
+def test_sim_serves_both_boards_on_ptys_and_stops_on_ctrl_c(tmp_path):
+    p, ports = start("--seed", "3", "--link-dir", str(tmp_path))
+    try:
+        assert ports["sensor"] == str(tmp_path / "sensor")
+        assert os.path.realpath(ports["stage"]).startswith("/dev/pts/")
+        stage = serial.Serial(ports["stage"], 250000, timeout=0.2)
+        stage.reset_input_buffer()
+        stage.write(b"M115\n")
+        text = b""
+        end = time.monotonic() + 3
+        while b"ok" not in text and time.monotonic() < end:
+            text += stage.read(4096)
+        assert b"AXIS_COUNT:4" in text
+        sensor = serial.Serial(ports["sensor"], 2_000_000, timeout=0.2)
+        sensor.write(encode_frame(Message("identify", seq=9)))
+        dec, got = FrameDecoder(), []
+        end = time.monotonic() + 3
+        while not got and time.monotonic() < end:
+            got = dec.feed(sensor.read(4096))
+        assert got[0].name == "identify_reply" and got[0].spec_hash == load_spec().hash
+    finally:
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=10)
+    assert p.returncode == 0 and "stopped" in err and "Traceback" not in err
+
+
+def test_unknown_scene_is_one_clear_line():
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "sim", "--scene", "banana"],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2
+    assert r.stderr.startswith("dmdsm: error: unknown scene 'banana'; known: rig_horizontal")
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_injected_disconnect_drops_the_port_and_brings_it_back(tmp_path):
+    p, ports = start("--faults", "stage.disconnect=1,stage.reconnect_s=0.3",
+                     "--link-dir", str(tmp_path))
+    try:
+        stage = serial.Serial(ports["stage"], 250000, timeout=0.05)
+        lost = False
+        end = time.monotonic() + 10
+        while not lost and time.monotonic() < end:
+            try:
+                stage.read(100)
+            except (serial.SerialException, OSError):
+                lost = True  # the host sees the board go away
+        assert lost
+        stage.close()
+        text = b""
+        end = time.monotonic() + 5
+        while b"AXIS_COUNT:4" not in text and time.monotonic() < end:
+            try:  # reconnect by the same name, as a host would
+                with serial.Serial(ports["stage"], 250000, timeout=0.2) as again:
+                    again.write(b"M115\n")
+                    text += again.read(4096) + again.read(4096)
+            except (serial.SerialException, OSError):
+                time.sleep(0.1)
+        assert b"AXIS_COUNT:4" in text
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.communicate(timeout=10)

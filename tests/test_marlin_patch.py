@@ -112,3 +112,18 @@ def test_script_runs_standalone_with_one_line_errors(checkout, tmp_path):
     assert r.returncode == 2
     assert r.stderr.startswith("apply.py: error: no Configuration.h")
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_emulator_follows_the_settings_file(tmp_path):
+    from dmdsm.sim.marlin import MarlinEmulator, checksum
+
+    changed = tmp_path / "settings.toml"
+    changed.write_text(SETTINGS_PATH.read_text().replace(
+        "steps_per_unit = [80, 100, 400, 8.8889]", "steps_per_unit = [80, 100, 400, 20]"))
+    for path, steps in ((SETTINGS_PATH, 800), (changed, 1800)):
+        m = MarlinEmulator(load_machine(path))
+        for n, cmd in enumerate(["G1 A90 F6000", "M400", "M114"], 1):
+            body = f"N{n} {cmd}"
+            m.receive(f"{body}*{checksum(body)}\n".encode(), 0.0)
+        out = m.step(10.0).decode()
+        assert f"Count X:0 Y:0 Z:0 A:{steps}" in out

@@ -69,6 +69,7 @@ class MarlinEmulator(GcodeMixin):
         self.auto_report_s = 0.0
         self.next_report = 0.0
         self.emergency = bytearray()
+        self.executed: list[tuple[int | None, str]] = []  # ground truth: (N, command) in order
         self.now = now
         self.out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Last Updated: 2024-10-21",
                      "echo:Compiled for the Anycubic Chiron with a turntable on axis A"]

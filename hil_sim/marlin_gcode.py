@@ -38,6 +38,7 @@ class GcodeMixin:
     planner: object
 
     def _execute(self, cmd: str, n: int | None) -> None:
+        self.executed.append((n, cmd))
         code, words = parse_words(cmd)
         handler = getattr(self, f"_{code}", None)
         if handler is None:

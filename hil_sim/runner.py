@@ -123,7 +123,9 @@ class Simulation:
         """Run both boards for dt seconds of simulated time."""
         end = self.t + dt
         while self.t < end - 1e-12:
-            step = min(STEP_S, end - self.t)
+            # fine steps only while shots sample the moving stage; moves are analytic
+            fine = self.sensor.core.armed() is not None
+            step = min(STEP_S if fine else 0.05, end - self.t)
             self.t += step
             for link, board in (("stage", self.stage), ("sensor", self.sensor)):
                 out = board.step(self.t)

@@ -1,0 +1,280 @@
+"""Stage client for the patched Marlin: numbered lines, resends, ok counting, busy, safety.
+
+Every line goes out as `N<n> <cmd>*<checksum>` and stays in the history until its `ok N<n>`
+(ADVANCED_OK) arrives. `Resend: r` sends r and everything after it again; repeated requests
+for the same r are ignored until r has been acknowledged (the lines already on the wire
+produce them). Marlin silently drops a line number it has already seen, so after a timeout
+the client never re-sends blindly: it probes with the next line number (a harmless M105),
+and Marlin's answer (an ok, or a Resend) tells which lines were really executed.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+from .transport import LinkError, open_port
+
+OK_N = re.compile(r"^ok\s+N(\d+)(?:\s+P(\d+))?(?:\s+B(\d+))?")
+RESEND = re.compile(r"^(?:Resend|rs):?\s*N?(\d+)", re.I)
+POSITION = re.compile(r"([XYZA]):\s*(-?\d+(?:\.\d+)?)")
+RX_BUFFER = 127      # bytes Marlin's 128-byte ring takes before the oldest line is read
+LONG = ("G28", "M400", "G4", "G29")
+
+
+class StageError(LinkError):
+    """The stage refused, halted or stopped answering; str() says what to do."""
+
+
+@dataclass
+class StageStats:
+    """What the link had to do: lines sent, resends served, timeout probes, lost oks."""
+
+    lines: int = 0
+    resent: int = 0
+    probes: int = 0
+    busy: int = 0
+    errors: int = 0
+
+
+def checksum(line: str) -> int:
+    """XOR of the bytes of a line (Marlin's `*` checksum)."""
+    c = 0
+    for b in line.encode():
+        c ^= b
+    return c
+
+
+class StageClient:
+    """A Marlin board on a serial port (or pty / URL)."""
+
+    def __init__(self, port: str, baudrate: int = 250000, timeout_s: float = 5.0,
+                 window: int = 4) -> None:
+        self.port_name = port
+        self.ser = open_port(port, baudrate)
+        self.timeout_s = timeout_s
+        self.window = window
+        self.next_n = 1
+        self.unacked: OrderedDict[int, str] = OrderedDict()  # n -> full line, in send order
+        self.replies: dict[int, list[str]] = {}              # lines printed before ok N
+        self.pending_text: list[str] = []
+        self.buf = b""
+        self.ignore_resend_of: int | None = None
+        self.plain_oks_expected = 0  # oks of unnumbered lines (emergency M410)
+        self.stats = StageStats()
+        self.last_position: dict[str, float] | None = None  # from M114 or M154 reports
+        self.halted = False
+        self._reset_line_numbers()
+
+    def close(self) -> None:
+        """Close the port."""
+        self.ser.close()
+
+    # ------------------------------------------------------------------ wire
+    def _write(self, text: str) -> None:
+        try:
+            self.ser.write(text.encode())
+        except (OSError, ValueError) as e:
+            raise StageError(f"lost the stage on {self.port_name}: {e}") from None
+
+    def _send_line(self, n: int, cmd: str) -> None:
+        body = f"N{n} {cmd}"
+        line = f"{body}*{checksum(body)}\n"
+        self.unacked[n] = line
+        self._write(line)
+        self.stats.lines += 1
+
+    def _bytes_in_flight(self) -> int:
+        return sum(len(x) for x in self.unacked.values())
+
+    def _read_lines(self, wait_s: float) -> list[str]:
+        try:
+            data = self.ser.read(1)  # returns at the first byte, or after the port timeout
+            if data:
+                data += self.ser.read(self.ser.in_waiting)
+            self.buf += data
+        except (OSError, ValueError) as e:
+            raise StageError(f"lost the stage on {self.port_name}: {e}") from None
+        lines = []
+        while b"\n" in self.buf:
+            raw, self.buf = self.buf.split(b"\n", 1)
+            lines.append(raw.decode(errors="replace").strip())
+        return [x for x in lines if x]
+
+    def _handle(self, line: str) -> None:
+        """Account for one line from the board."""
+        if line.startswith("ok"):
+            m = OK_N.match(line)
+            if m:
+                n = int(m.group(1))
+                if n in self.unacked:
+                    for k in list(self.unacked):  # in-order: everything up to n is done
+                        self.unacked.pop(k)
+                        self.replies.setdefault(k, [])
+                        if k == n:
+                            break
+                    self.replies[n] = self.pending_text
+                    self.pending_text = []
+                if self.ignore_resend_of is not None and n >= self.ignore_resend_of:
+                    self.ignore_resend_of = None
+            elif self.plain_oks_expected:
+                self.plain_oks_expected -= 1
+            return
+        m = RESEND.match(line)
+        if m:
+            self._resend_from(int(m.group(1)))
+            return
+        if line.startswith("echo:busy"):
+            self.stats.busy += 1
+            return
+        if "Printer halted" in line or "kill() called" in line or "Homing Failed" in line:
+            self.halted = True
+            return
+        if line.startswith("Error:"):
+            self.stats.errors += 1
+            return
+        if line.startswith("X:") and "Count" in line:
+            self.last_position = {k: float(v) for k, v in POSITION.findall(
+                line.split("Count")[0])}
+        self.pending_text.append(line)
+
+    def _resend_from(self, r: int) -> None:
+        if r == self.ignore_resend_of:
+            return  # a stale request from lines that were already on the wire
+        if r not in self.unacked:
+            return  # for a line already acknowledged: nothing to do
+        self.ignore_resend_of = r
+        self.stats.resent += 1
+        for n, line in list(self.unacked.items()):
+            if n >= r:
+                self._write(line)
+
+    def _pump(self, until: float, done: callable) -> None:
+        """Read and handle lines until done() or the deadline; busy lines extend it."""
+        deadline = until
+        while not done():
+            if self.halted:
+                raise StageError("the stage firmware halted (kill() called): press the "
+                                 "board's reset button or power-cycle it, then home again")
+            now = time.monotonic()
+            if now > deadline:
+                raise TimeoutError
+            busy_before = self.stats.busy
+            for line in self._read_lines(0.05):
+                self._handle(line)
+            if self.stats.busy != busy_before:
+                deadline = time.monotonic() + self.timeout_s
+
+    # ------------------------------------------------------------------ commands
+    def _reset_line_numbers(self) -> None:
+        self._write("\n")  # end any partial line left on the wire
+        self.unacked.clear()
+        self.next_n = 1
+        self.ignore_resend_of = None
+        body = "N0 M110 N0"
+        self._write(f"{body}*{checksum(body)}\n")
+        self.unacked[0] = f"{body}*{checksum(body)}\n"
+        self._wait_acked(0, self.timeout_s)
+
+    def _wait_acked(self, n: int, timeout_s: float) -> None:
+        self._await(lambda: n not in self.unacked, timeout_s, f"line {n} not acknowledged")
+
+    def _await(self, done: callable, timeout_s: float, what: str) -> None:
+        """Pump until done(); after a silent timeout probe (up to 3 times), then give up."""
+        for attempt in range(4):
+            try:
+                self._pump(time.monotonic() + timeout_s, done)
+                return
+            except TimeoutError:
+                if attempt == 3:
+                    break
+                self._probe()
+        if b"\x00" in self.buf or any(b > 0x7F for b in self.buf[-64:]):
+            raise StageError(f"{self.port_name} does not look like a Marlin board (it sends "
+                             f"binary data: is it the sensor board?)")
+        raise StageError(f"the stage on {self.port_name} stopped answering ({what}): check "
+                         f"the cable and that it runs the dmdsm Marlin (docs/marlin.md)")
+
+    def _probe(self) -> None:
+        """After a timeout: a harmless line with the next number shows what Marlin has."""
+        self.stats.probes += 1
+        n = self.next_n
+        self.next_n += 1
+        self._send_line(n, "M105")
+
+    def send(self, cmd: str, timeout_s: float | None = None, wait: bool = True) -> list[str]:
+        """Send one command; with wait, return the lines it printed before its ok."""
+        n = self.next_n
+        self.next_n += 1
+        # flow control: command slots and the firmware's 128-byte receive ring
+        self._await(lambda: len(self.unacked) < self.window
+                    and self._bytes_in_flight() + len(cmd) + 12 <= RX_BUFFER,
+                    self.timeout_s, "no room in the command buffer")
+        self._send_line(n, cmd)
+        if not wait:
+            return []
+        long_cmd = cmd.split()[0].upper() in LONG
+        self._wait_acked(n, timeout_s or (self.timeout_s * (4 if long_cmd else 1)))
+        return self.replies.pop(n, [])
+
+    def drain(self, timeout_s: float | None = None) -> None:
+        """Wait until every line sent has been acknowledged."""
+        if self.unacked:
+            self._wait_acked(next(reversed(self.unacked)), timeout_s or self.timeout_s)
+
+    # ------------------------------------------------------------------ operations
+    def home(self, axes: str = "XYZ") -> dict[str, float]:
+        """G28 for X Y Z (A has no endstop); returns the position after homing."""
+        self.drain()
+        self.send("G28 " + " ".join(a.upper() for a in axes if a.upper() in "XYZ"),
+                  timeout_s=120)
+        return self.where()
+
+    def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
+             a: float | None = None, feed_mm_min: float | None = None,
+             relative: bool = False, wait: bool = False) -> None:
+        """G1 to X Y Z (mm) and A (deg); queued unless wait."""
+        words = [f"{k}{v:.4f}" for k, v in zip("XYZA", (x, y, z, a)) if v is not None]
+        if feed_mm_min:
+            words.append(f"F{feed_mm_min:.0f}")
+        if relative:
+            self.send("G91", wait=False)
+        self.send("G1 " + " ".join(words), wait=wait)
+        if relative:
+            self.send("G90", wait=False)
+
+    def wait(self, timeout_s: float = 600.0) -> None:
+        """M400: return when every queued move has finished."""
+        self.send("M400", timeout_s=timeout_s)
+
+    def where(self) -> dict[str, float]:
+        """M114: the position of the last queued move (mm, deg)."""
+        self.drain()
+        lines = self.send("M114")
+        reports = [x for x in lines if x.startswith("X:")]
+        if not reports:
+            raise StageError("M114 gave no position: is this the dmdsm Marlin?")
+        pos = {k: float(v) for k, v in POSITION.findall(reports[-1].split("Count")[0])}
+        self.last_position = pos
+        return pos
+
+    def stop(self) -> None:
+        """M410 through the emergency parser: stop now, drop queued moves; port stays usable."""
+        self.plain_oks_expected += 1
+        self._write("M410\n")
+        time.sleep(0.05)
+        self.drain(timeout_s=self.timeout_s)
+
+    def emergency_stop(self) -> str:
+        """M112: the firmware halts until its reset button is pressed."""
+        self._write("M112\n")
+        self.halted = True
+        return ("emergency stop sent: the stage firmware is halted; press the board's reset "
+                "button (or power-cycle it), then home again")
+
+    def firmware_info(self) -> str:
+        """The M115 FIRMWARE_NAME line."""
+        lines = self.send("M115")
+        return next((x for x in lines if x.startswith("FIRMWARE_NAME")), "")

@@ -1,0 +1,37 @@
+"""Opening serial ports by name or URL, with one-line errors that say what to fix."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import serial
+
+
+class LinkError(Exception):
+    """A link problem the user can act on; str() is one line."""
+
+
+def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialBase:
+    """Open a device path (/dev/ttyACM0, /dev/pts/3), a by-id link or a pySerial URL
+    (socket://host:port, loop://) exclusively."""
+    if "://" not in name and not os.path.exists(name):
+        raise LinkError(f"{name} does not exist: check the cable, or list ports with "
+                        f"`dmdsm ports`")
+    try:
+        if "://" in name:
+            return serial.serial_for_url(name, baudrate=baudrate, timeout=timeout)
+        return serial.Serial(name, baudrate=baudrate, timeout=timeout, exclusive=True)
+    except serial.SerialException as e:
+        text = str(e).lower()
+        err = getattr(e, "errno", None)
+        if err == errno.EACCES or "permission denied" in text:
+            raise LinkError(f"no permission to open {name}: add yourself to the dialout "
+                            f"group (sudo usermod -aG dialout $USER) and log in again") from None
+        if "exclusively lock" in text or err == errno.EBUSY or "busy" in text:
+            raise LinkError(f"{name} is in use by another program (OctoPrint, a terminal, "
+                            f"another dmdsm): close it and retry") from None
+        if "connection refused" in text:
+            raise LinkError(f"nothing listens at {name}: is the emulator or QEMU "
+                            f"running?") from None
+        raise LinkError(f"cannot open {name}: {e}") from None

@@ -110,11 +110,9 @@ class StageClient:
             if m:
                 n = int(m.group(1))
                 if n in self.unacked:
-                    for k in list(self.unacked):  # in-order: everything up to n is done
+                    for k in [k for k in self.unacked if k <= n]:  # in order: all up to n
                         self.unacked.pop(k)
                         self.replies.setdefault(k, [])
-                        if k == n:
-                            break
                     self.replies[n] = self.pending_text
                     self.pending_text = []
                 if self.ignore_resend_of is not None and n >= self.ignore_resend_of:
@@ -147,9 +145,9 @@ class StageClient:
             return  # for a line already acknowledged: nothing to do
         self.ignore_resend_of = r
         self.stats.resent += 1
-        for n, line in list(self.unacked.items()):
+        for n in sorted(self.unacked):
             if n >= r:
-                self._write(line)
+                self._write(self.unacked[n])
 
     def _pump(self, until: float, done: callable) -> None:
         """Read and handle lines until done() or the deadline; busy lines extend it."""
@@ -176,7 +174,26 @@ class StageClient:
         body = "N0 M110 N0"
         self._write(f"{body}*{checksum(body)}\n")
         self.unacked[0] = f"{body}*{checksum(body)}\n"
-        self._wait_acked(0, self.timeout_s)
+        try:
+            self._wait_acked(0, self.timeout_s)
+        except StageError:
+            if self._is_sensor_board():
+                raise StageError(f"{self.port_name} is the dmdsm sensor board, not the stage "
+                                 f"(Marlin): swap the two port names") from None
+            raise
+
+    def _is_sensor_board(self) -> bool:
+        """True if a dmdsm protocol ping gets a pong (the ports were swapped)."""
+        from dmdsm.protocol import FrameDecoder, Message, encode_frame
+        self._write("\n")
+        self.ser.write(b"\x00" + encode_frame(Message("ping", seq=1, nonce=0x57A6E)))
+        dec = FrameDecoder()
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            for m in dec.feed(self.ser.read(256)):
+                if m.name == "pong":
+                    return True
+        return False
 
     def _wait_acked(self, n: int, timeout_s: float) -> None:
         self._await(lambda: n not in self.unacked, timeout_s, f"line {n} not acknowledged")
@@ -200,18 +217,19 @@ class StageClient:
     def _probe(self) -> None:
         """After a timeout: a harmless line with the next number shows what Marlin has."""
         self.stats.probes += 1
+        self.ignore_resend_of = None  # a Resend answering the probe is never stale
         n = self.next_n
         self.next_n += 1
         self._send_line(n, "M105")
 
     def send(self, cmd: str, timeout_s: float | None = None, wait: bool = True) -> list[str]:
         """Send one command; with wait, return the lines it printed before its ok."""
-        n = self.next_n
-        self.next_n += 1
         # flow control: command slots and the firmware's 128-byte receive ring
         self._await(lambda: len(self.unacked) < self.window
                     and self._bytes_in_flight() + len(cmd) + 12 <= RX_BUFFER,
                     self.timeout_s, "no room in the command buffer")
+        n = self.next_n  # numbered only now: probes while waiting take numbers too
+        self.next_n += 1
         self._send_line(n, cmd)
         if not wait:
             return []

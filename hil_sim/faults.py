@@ -34,6 +34,7 @@ class FaultyChannel:
         self.rng = np.random.default_rng(seed)
         self.stalled_until = 0.0
         self.held = bytearray()
+        self.tap: bytearray | None = None  # a copy of what went in, before any fault (tests)
         self.flipped = self.dropped = self.inserted = self.stalls = 0
 
     def corrupt(self, data: bytes) -> bytes:
@@ -60,6 +61,8 @@ class FaultyChannel:
 
     def deliver(self, data: bytes, now: float, dt: float) -> bytes:
         """Corrupt `data` and hold it back during stalls; returns what passes at `now` (s)."""
+        if self.tap is not None:
+            self.tap += data
         self.held += self.corrupt(data)
         if self.f.stall and self.rng.random() < self.f.stall * dt:
             self.stalled_until = now + self.f.stall_s

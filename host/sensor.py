@@ -1,0 +1,306 @@
+"""Sensor client: handshake, commands with retries, shots streamed into numpy on a reader thread.
+
+Every command carries a sequence number and waits for its one response; on a timeout the same
+bytes go out again with the retransmit flag (the firmware answers a repeat from its cache and
+does not run it twice). Waveforms land in preallocated arrays by shot id; gaps in the ids and
+the device's counters account for every lost shot. Nothing that failed its CRC is delivered.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import serial
+
+from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
+from dmdsm.protocol.spec import SAMPLE_DTYPES
+
+from .transport import LinkError, open_port
+
+SPEC = load_spec()
+ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
+CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
+
+
+class SensorError(LinkError):
+    """The sensor board refused or failed; str() says what to do."""
+
+
+@dataclass
+class Shots:
+    """Waveforms of one acquisition, indexed by shot id (0 .. n-1 after arm)."""
+
+    samples: np.ndarray         # (n, n_samples) u16 means or u32 sums
+    received: np.ndarray        # bool per shot id
+    timestamp: np.ndarray       # device ticks of the first averaged edge
+    trigger_phase: np.ndarray   # ticks from the edge to the first sample
+    n_average: np.ndarray
+    config: dict = field(default_factory=dict)
+    device_dropped: int = 0     # shots the device dropped (its counter, during this run)
+    adc_overruns: int = 0
+    link_rejected: int = 0      # frames the host decoder rejected during this run
+
+    @property
+    def lost(self) -> np.ndarray:
+        """Shot ids that never arrived."""
+        return np.nonzero(~self.received)[0]
+
+
+@dataclass
+class ClockSync:
+    """Device ticks = offset + rate * host monotonic seconds, from clock_sync exchanges."""
+
+    offset_ticks: float
+    ticks_per_s: float
+    residual_s: float      # rms of the fit (s)
+    rtt_s: float           # median round trip (s)
+
+    def to_host_s(self, ticks: np.ndarray | float) -> np.ndarray | float:
+        """Host monotonic time (s) of device ticks."""
+        return (np.asarray(ticks, dtype=float) - self.offset_ticks) / self.ticks_per_s
+
+
+class SensorClient:
+    """The STM32 sensor board on a port name or URL (device, pty, socket:// for QEMU)."""
+
+    def __init__(self, port: str, baudrate: int = 2_000_000, timeout_s: float = 0.5,
+                 retries: int = 4, expected_hash: int = SPEC.hash) -> None:
+        self.port_name = port
+        self.baudrate = baudrate
+        self.timeout_s = timeout_s
+        self.retries = retries
+        self.expected_hash = expected_hash
+        self.seq = 0
+        self.cond = threading.Condition()
+        self.responses: dict[int, Message] = {}
+        self.logs: list[Message] = []
+        self.decoder = FrameDecoder()
+        self.link_error: str | None = None
+        self.shots: Shots | None = None
+        self.identity: Message | None = None
+        self._open()
+        self.identity = self.handshake()
+
+    # ------------------------------------------------------------------ link
+    def _open(self) -> None:
+        self.ser = open_port(self.port_name, self.baudrate, timeout=0.02)
+        self.link_error = None
+        self._stop = False
+        self.reader = threading.Thread(target=self._read_loop, daemon=True)
+        self.reader.start()
+        self._write(b"\x00")  # end any partial frame in the firmware's receiver
+
+    def close(self) -> None:
+        """Stop the reader and close the port."""
+        self._stop = True
+        self.reader.join(1.0)
+        try:
+            self.ser.close()
+        except OSError:
+            pass
+
+    def reconnect(self, wait_s: float = 10.0) -> None:
+        """Reopen the port (after a USB re-enumeration) and repeat the handshake."""
+        self.close()
+        end = time.monotonic() + wait_s
+        while True:
+            try:
+                self._open()
+                break
+            except LinkError:
+                if time.monotonic() > end:
+                    raise SensorError(f"the sensor board did not come back on "
+                                      f"{self.port_name} within {wait_s:.0f} s") from None
+                time.sleep(0.2)
+        self.identity = self.handshake()
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self.ser.write(data)
+        except (OSError, serial.SerialException) as e:
+            self.link_error = str(e)
+
+    def _read_loop(self) -> None:
+        while not self._stop:
+            try:
+                data = self.ser.read(65536) if self.ser.in_waiting else self.ser.read(1)
+            except (OSError, serial.SerialException, TypeError, ValueError) as e:
+                with self.cond:
+                    self.link_error = str(e) or "port closed"
+                    self.cond.notify_all()
+                return
+            if not data:
+                continue
+            for m in self.decoder.feed(data):
+                self._route(m)
+
+    def _route(self, m: Message) -> None:
+        if m.name == "waveform":
+            s = self.shots
+            if s is not None and m.shot_id < len(s.received) and not s.received[m.shot_id]:
+                i = m.shot_id
+                n = min(m.samples.size, s.samples.shape[1])
+                s.samples[i, :n] = m.samples[:n]
+                s.timestamp[i] = m.timestamp
+                s.trigger_phase[i] = m.trigger_phase
+                s.n_average[i] = m.n_average
+                s.received[i] = True
+            with self.cond:
+                self.cond.notify_all()
+            return
+        with self.cond:
+            if m.is_response:
+                self.responses[m.seq] = m
+            elif m.name == "log":
+                self.logs.append(m)
+            self.cond.notify_all()
+
+    # ------------------------------------------------------------------ commands
+    def request(self, name: str, **fields: object) -> Message:
+        """Send a command and return its response; retried with the same seq on timeout."""
+        if self.link_error:
+            raise SensorError(f"lost the sensor board on {self.port_name} ({self.link_error}): "
+                              f"reconnect() or run the command again")
+        self.seq = (self.seq + 1) & 0xFFFF
+        seq = self.seq
+        frame = encode_frame(Message(name, seq=seq, **fields))
+        retry = encode_frame(Message(name, seq=seq, flags=SPEC.flags["retransmit"], **fields))
+        for attempt in range(self.retries + 1):
+            self._write(frame if attempt == 0 else retry)
+            end = time.monotonic() + self.timeout_s
+            with self.cond:
+                while seq not in self.responses and not self.link_error:
+                    left = end - time.monotonic()
+                    if left <= 0:
+                        break
+                    self.cond.wait(left)
+                if seq in self.responses:
+                    return self.responses.pop(seq)
+                if self.link_error:
+                    raise SensorError(f"lost the sensor board on {self.port_name} "
+                                      f"({self.link_error}): reconnect() or run the command "
+                                      f"again")
+        raise SensorError(f"no reply to {name} from {self.port_name} after "
+                          f"{self.retries + 1} tries: is the sensor board powered and flashed?")
+
+    def _expect_ack(self, r: Message, name: str) -> None:
+        if r.name == "nak":
+            err = ERRORS.get(r.error, str(r.error))
+            what = ""
+            if err == "out_of_range" and name == "set_config" and 0 < r.detail <= len(
+                    CONFIG_FIELDS):
+                what = f": {CONFIG_FIELDS[r.detail - 1]} is outside its range"
+            raise SensorError(f"the sensor board refused {name} ({err}{what})")
+
+    def handshake(self) -> Message:
+        """identify; refuses another protocol version or spec and recognises a Marlin."""
+        try:
+            r = self.request("identify")
+        except SensorError:
+            if self._looks_like_marlin():
+                raise SensorError(f"{self.port_name} is the stage board (Marlin), not the "
+                                  f"sensor: swap the two port names") from None
+            raise SensorError(f"no dmdsm sensor firmware answers on {self.port_name}: flash "
+                              f"it with `dmdsm flash stm32`, or check the port") from None
+        if r.protocol_version != SPEC.version or r.spec_hash != self.expected_hash:
+            raise SensorError(
+                f"incompatible sensor firmware on {self.port_name}: protocol "
+                f"{r.protocol_version}, spec {r.spec_hash:016x}; this host needs protocol "
+                f"{SPEC.version}, spec {self.expected_hash:016x}: flash the firmware built "
+                f"from this checkout with `dmdsm flash stm32`")
+        return r
+
+    def _looks_like_marlin(self) -> bool:
+        self._write(b"\nM115\n")
+        time.sleep(0.5)
+        text = bytes(self.decoder._buf).decode(errors="replace")
+        return any(w in text for w in ("FIRMWARE_NAME", "echo:", "ok", "start"))
+
+    def configure(self, **cfg: int) -> dict:
+        """set_config with the current values for anything not given; returns the config."""
+        current = self.request("get_config").fields
+        new = {**current, **cfg}
+        unknown = set(cfg) - set(CONFIG_FIELDS)
+        if unknown:
+            raise SensorError(f"unknown setting {sorted(unknown)[0]}; known: "
+                              f"{', '.join(CONFIG_FIELDS)}")
+        self._expect_ack(self.request("set_config", **new), "set_config")
+        return new
+
+    def status(self) -> dict:
+        """get_status as a dict."""
+        return dict(self.request("get_status").fields)
+
+    def disarm(self) -> None:
+        """Stop acquiring."""
+        self._expect_ack(self.request("disarm"), "disarm")
+
+    def acquire(self, n_shots: int, timeout_s: float | None = None,
+                progress: object | None = None) -> Shots:
+        """Arm for n_shots waveforms and collect them; lost ones are reported, not waited for."""
+        cfg = self.request("get_config").fields
+        dtype = np.dtype(SAMPLE_DTYPES[cfg["sample_format"]])
+        shots = Shots(np.zeros((n_shots, cfg["n_samples"]), dtype), np.zeros(n_shots, bool),
+                      np.zeros(n_shots, np.uint64), np.zeros(n_shots, np.uint16),
+                      np.zeros(n_shots, np.uint16), dict(cfg))
+        before = self.status()
+        rejected0 = self.decoder.stats.errors
+        self.shots = shots
+        try:
+            self._expect_ack(self.request("arm", n_shots=n_shots), "arm")
+            self._collect(shots, n_shots, cfg, timeout_s, progress)
+        finally:
+            self.shots = None
+        after = self.status()
+        shots.device_dropped = after["shots_dropped"] - before["shots_dropped"]
+        shots.adc_overruns = after["adc_overruns"] - before["adc_overruns"]
+        shots.link_rejected = self.decoder.stats.errors - rejected0
+        return shots
+
+    def _collect(self, shots: Shots, n: int, cfg: dict, timeout_s: float | None,
+                 progress: object | None) -> None:
+        """Wait for the shots; stop early once the device is idle and the link is quiet."""
+        quiet_since = time.monotonic()
+        last_count = 0
+        deadline = time.monotonic() + (timeout_s or 30.0 + n * 0.05)
+        while True:
+            count = int(shots.received.sum())
+            if progress is not None and count != last_count:
+                progress(count)
+            if count != last_count:
+                quiet_since = time.monotonic()
+                last_count = count
+            if count == n:
+                return
+            if self.link_error:
+                raise SensorError(f"lost the sensor board on {self.port_name} mid-acquisition "
+                                  f"({self.link_error}); {count} of {n} shots arrived")
+            if time.monotonic() > deadline:
+                self.disarm()
+                return
+            if time.monotonic() - quiet_since > 0.5:
+                if self.status()["state"] == SPEC.enums["state"]["idle"]:
+                    return  # the device finished; the rest were lost
+                quiet_since = time.monotonic()
+            with self.cond:
+                self.cond.wait(0.05)
+
+    def sync_clock(self, exchanges: int = 16) -> ClockSync:
+        """Fit device ticks against host time over clock_sync exchanges (Klipper's way)."""
+        mids, ticks, rtts = [], [], []
+        for _ in range(exchanges):
+            t0 = time.monotonic_ns()
+            r = self.request("clock_sync", host_time_ns=t0)
+            t1 = time.monotonic_ns()
+            mids.append((t0 + t1) / 2e9)
+            ticks.append(float(r.device_ticks))
+            rtts.append((t1 - t0) / 1e9)
+        x, y = np.asarray(mids), np.asarray(ticks)
+        keep = np.asarray(rtts) <= np.median(rtts) * 1.5  # drop exchanges that waited
+        rate, offset = np.polyfit(x[keep] - x[0], y[keep], 1)
+        resid = y[keep] - (offset + rate * (x[keep] - x[0]))
+        return ClockSync(offset - rate * x[0], rate, float(np.sqrt(np.mean(resid ** 2)) / rate),
+                         float(np.median(rtts)))

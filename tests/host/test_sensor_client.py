@@ -1,0 +1,66 @@
+"""The sensor client against hil_sim: no corrupted shot accepted, every loss counted."""
+
+import numpy as np
+import pytest
+
+from dmdsm.host.sensor import SensorClient, SensorError
+from dmdsm.host.transport import LinkError
+from dmdsm.protocol import FrameDecoder
+
+
+def test_10000_shots_through_a_noisy_link_every_shot_accounted(emulator):
+    emu = emulator(speed=4.0, faults="sensor.flip=1e-5,sensor.drop=1e-5", seed=21)
+    tap = emu.sim.channels[("sensor", "up")].tap = bytearray()
+    sc = SensorClient(emu.sensor)
+    sc.configure(n_samples=128, n_average=2, trigger_timeout_ms=2000)
+    shots = sc.acquire(10_000, timeout_s=120)
+    sent = {m.shot_id: m for m in FrameDecoder().feed(bytes(tap)) if m.name == "waveform"}
+    got = np.nonzero(shots.received)[0]
+    assert len(got) + len(shots.lost) == 10_000
+    assert 0 < len(shots.lost) < 500 and shots.link_rejected > 0
+    for i in got:  # zero corrupted shots accepted: every delivered one is what the board sent
+        np.testing.assert_array_equal(shots.samples[i], sent[i].samples)
+        assert shots.timestamp[i] == sent[i].timestamp
+    # every lost shot has a cause: dropped on the device, or its frame rejected on the wire
+    assert shots.device_dropped <= len(shots.lost)
+    assert len(shots.lost) - shots.device_dropped <= shots.link_rejected
+    sc.close()
+
+
+def test_configure_naks_name_the_field(emulator):
+    sc = SensorClient(emulator().sensor)
+    with pytest.raises(SensorError, match="refused set_config .*pretrigger is outside"):
+        sc.configure(n_samples=256, pretrigger=300)
+    with pytest.raises(SensorError, match="unknown setting n_smples"):
+        sc.configure(n_smples=256)
+    sc.close()
+
+
+def test_wrong_device_missing_port_and_incompatible_firmware(emulator, tmp_path):
+    emu = emulator()
+    with pytest.raises(SensorError, match="is the stage board \\(Marlin\\), not the sensor"):
+        SensorClient(emu.stage, timeout_s=0.2, retries=1)
+    with pytest.raises(LinkError, match="does not exist"):
+        SensorClient(str(tmp_path / "ttyACM9"))
+    with pytest.raises(SensorError, match="incompatible sensor firmware.*dmdsm flash stm32"):
+        SensorClient(emu.sensor, expected_hash=0x1234)
+
+
+def test_disconnect_mid_stream_is_reported_and_recovered(emulator):
+    emu = emulator(speed=1.0, faults="sensor.disconnect=0.5,sensor.reconnect_s=0.3", seed=2)
+    sc = SensorClient(emu.sensor)
+    sc.configure(n_samples=256, n_average=1)
+    with pytest.raises(SensorError, match="lost the sensor board"):
+        for _ in range(20):  # a disconnect comes within a few seconds
+            sc.acquire(500, timeout_s=5)
+    sc.reconnect()
+    assert sc.identity.name == "identify_reply"
+    sc.close()
+
+
+def test_clock_sync_recovers_the_tick_rate(emulator):
+    sc = SensorClient(emulator(speed=1.0).sensor)
+    cs = sc.sync_clock(16)
+    assert cs.ticks_per_s == pytest.approx(240e6, rel=0.02)
+    assert cs.residual_s < 0.01 and cs.rtt_s < 0.1
+    sc.close()

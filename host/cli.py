@@ -7,8 +7,11 @@ import sys
 
 from dmdsm.protocol import tool as protocol_tool
 
-from . import __version__, sim_cmd
+from . import __version__, device_cmds, sim_cmd
 from . import flash as flash_cmd
+from .config import ConfigError
+from .safety import UnsafeMove
+from .transport import LinkError
 
 
 class CliError(Exception):
@@ -25,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     protocol_tool.add_parser(sub)
     flash_cmd.add_parser(sub)
     sim_cmd.add_parser(sub)
+    device_cmds.add_parsers(sub)
     d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")
@@ -42,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (CliError, protocol_tool.ToolError, flash_cmd.FlashError) as e:
+    except (CliError, protocol_tool.ToolError, flash_cmd.FlashError, LinkError, ConfigError,
+            UnsafeMove) as e:
         print(f"dmdsm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

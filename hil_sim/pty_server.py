@@ -84,11 +84,18 @@ class PtyServer:
                         if data:
                             self.sim.write(p.name, data)
                 target = sim0 + (time.monotonic() - wall0) * self.speed
-                dt = min(max(target - self.sim.t, 0.0), 0.05)
-                if dt > 0:
-                    self.sim.advance(dt)
-                for p in self.ports.values():
-                    self._pump_out(p, dt)
+                left = min(max(target - self.sim.t, 0.0), 0.05)
+                while True:  # advance in short chunks and pump the ptys between them
+                    # a full pty holds the device's transmitter, as USB flow control would
+                    self.sim.sensor.link_blocked = len(self.ports["sensor"].pending) > 65536
+                    dt = min(left, 0.005)
+                    if dt > 0:
+                        self.sim.advance(dt)
+                    for p in self.ports.values():
+                        self._pump_out(p, dt)
+                    left -= dt
+                    if left <= 1e-9:
+                        break
 
     def _pump_out(self, p: Port, dt: float) -> None:
         p.pending += self.sim.read(p.name)

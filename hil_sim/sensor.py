@@ -41,6 +41,7 @@ class SensorBoard:
         self.now = 0.0
         self.next_shot = 0.0
         self.link_credit = 0.0
+        self.link_blocked = False  # the host side cannot take more (pty full): back-pressure
         self.shots = 0
         self._hit_cache: tuple[tuple, Hit] | None = None
 
@@ -92,7 +93,7 @@ class SensorBoard:
         self.step_to(now)
         burst = 0.005 * self.link_bytes_per_s + 64  # a UART does not save up idle time
         self.link_credit = min(self.link_credit + dt * self.link_bytes_per_s, burst)
-        n = int(self.link_credit)
+        n = 0 if self.link_blocked else int(self.link_credit)
         data = self.core.tx(n) if n > 0 else b""
         self.link_credit -= len(data)
         return data

@@ -22,6 +22,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--link-dir", default=None,
                    help="also create stable symlinks DIR/sensor and DIR/stage")
     p.add_argument("--temperature", type=float, default=20.0, help="air temperature (degC)")
+    p.add_argument("--rep-rate", type=float, default=1000.0, help="laser shots per second")
+    p.add_argument("--sensor-link", type=float, default=200_000.0,
+                   help="sensor link bytes/s (default 2 Mbaud: 200000; USB FS: 1150000)")
     p.add_argument("--json", action="store_true", help="print the ports as one JSON line")
     p.set_defaults(func=cmd_sim)
 
@@ -41,7 +44,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         raise CliError("--speed must be positive")
     try:
         sim = Simulation(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
-                                   temperature_c=args.temperature))
+                                   temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
+                                   sensor_link_bytes_per_s=args.sensor_link))
     except (ValueError, TypeError) as e:
         raise CliError(str(e)) from None
     server = PtyServer(sim, speed=args.speed, link_dir=args.link_dir)

@@ -72,6 +72,18 @@ class StageClient:
         """Close the port."""
         self.ser.close()
 
+    def __enter__(self) -> StageClient:
+        return self
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
+        """On Ctrl-C or an error during motion: quick-stop (M410), then close."""
+        if exc_type is not None and not self.halted:
+            try:
+                self._write("M410\n")
+            except StageError:
+                pass
+        self.close()
+
     # ------------------------------------------------------------------ wire
     def _write(self, text: str) -> None:
         try:

@@ -91,3 +91,33 @@ def test_port_in_use_is_reported(emulator):
     with pytest.raises(LinkError, match="in use by another program"):
         StageClient(emu.stage)
     st.close()
+
+
+def test_m154_reports_never_confuse_m114(emulator):
+    emu = emulator(speed=10.0)
+    st = StageClient(emu.stage)
+    st.send("M154 S1")  # unsolicited position lines from now on, without ok
+    st.send("G92 A0")
+    for k in range(1, 6):
+        st.move(a=90 * k, feed_mm_min=5400)
+        st.wait()
+        assert st.where()["A"] == 90 * k
+        time.sleep(0.15)
+    assert st.last_position is not None
+    st.send("M154 S0")
+    st.close()
+
+
+def test_an_error_during_motion_quick_stops(emulator):
+    emu = emulator(speed=5.0)
+    with pytest.raises(RuntimeError), StageClient(emu.stage) as st:
+        st.send("G92 A0")
+        st.move(a=3600, feed_mm_min=5400)
+        time.sleep(0.3)
+        raise RuntimeError("user code failed mid-move")
+    time.sleep(0.3)
+    st2 = StageClient(emu.stage)
+    a = st2.where()["A"]
+    time.sleep(0.3)
+    assert st2.where()["A"] == a and 0 < emu.sim.stage.position()[3] < 3600
+    st2.close()

@@ -127,3 +127,17 @@ def test_the_emulator_follows_the_settings_file(tmp_path):
             m.receive(f"{body}*{checksum(body)}\n".encode(), 0.0)
         out = m.step(10.0).decode()
         assert f"Count X:0 Y:0 Z:0 A:{steps}" in out
+
+
+def test_the_host_envelope_follows_the_settings_file(tmp_path):
+    import numpy as np
+
+    from dmdsm.host.safety import UnsafeMove, check_move
+
+    changed = tmp_path / "settings.toml"
+    changed.write_text(SETTINGS_PATH.read_text().replace(
+        "max_pos = [410, 410, 455, 360]", "max_pos = [300, 410, 455, 360]"))
+    start, target = np.zeros(3), np.array([350.0, 0, 0])
+    check_move(start, target, load_machine())
+    with pytest.raises(UnsafeMove, match="X350 is outside the machine envelope"):
+        check_move(start, target, load_machine(changed))

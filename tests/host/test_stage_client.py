@@ -121,3 +121,16 @@ def test_an_error_during_motion_quick_stops(emulator):
     time.sleep(0.3)
     assert st2.where()["A"] == a and 0 < emu.sim.stage.position()[3] < 3600
     st2.close()
+
+
+def test_disconnect_mid_move_is_a_clear_error_not_a_hang(emulator):
+    emu = emulator(speed=2.0, faults="stage.disconnect=0.7,stage.reconnect_s=0.5", seed=4)
+    t0 = time.monotonic()
+    with pytest.raises(StageError, match="lost the stage|stopped answering"):
+        for _ in range(200):  # keep moving until the port goes away
+            st = StageClient(emu.stage, timeout_s=1.0)
+            st.send("G91")
+            for _ in range(50):
+                st.move(a=5, feed_mm_min=5400, wait=True)
+            st.close()
+    assert time.monotonic() - t0 < 60

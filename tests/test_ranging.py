@@ -1,0 +1,82 @@
+"""Ranging: arrivals at the Cramer-Rao bound, no bogus distances, first echo, phase removal."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dmdsm.host.ranging import (
+    MatchedFilter,
+    crlb_samples,
+    distance_mm,
+    gaussian_pulse,
+    speed_of_sound_mm_s,
+)
+
+FS = 240e6 / 67
+N = 1024
+US = gaussian_pulse(FS, 1.0e6, 0.6)
+OA = gaussian_pulse(FS, 0.8e6, 0.9)
+FILTERS = {"us": MatchedFilter(US, N), "oa": MatchedFilter(OA, N)}
+
+
+def pulse_at(template, delay, amp=1.0):
+    """The template's continuous pulse placed with its reference at `delay` samples."""
+    fc = {id(US): (1.0e6, 0.6), id(OA): (0.8e6, 0.9)}[id(template)]
+    sg = np.sqrt(2 * np.log(2)) / (np.pi * fc[1] * fc[0])
+    t = (np.arange(N) - delay) / FS
+    return amp * np.exp(-0.5 * (t / sg) ** 2) * np.cos(2 * np.pi * fc[0] * t)
+
+
+@settings(max_examples=60)
+@given(kind=st.sampled_from(["us", "oa"]), delay=st.floats(60, 850),
+       amp=st.floats(50, 5000), snr_db=st.floats(22, 45), seed=st.integers(0, 2**31))
+def test_arrival_is_within_a_few_crlb(kind, delay, amp, snr_db, seed):
+    tmpl = US if kind == "us" else OA
+    sigma = amp * np.sqrt(tmpl.energy) / 10 ** (snr_db / 20)
+    rng = np.random.default_rng(seed)
+    x = pulse_at(tmpl, delay, amp) + rng.normal(0, sigma, N)
+    r = FILTERS[kind](x[None, :])
+    bound = crlb_samples(tmpl, sigma, amp)
+    assert abs(r.index[0] - delay) < 6 * bound
+    assert r.snr_db[0] == pytest.approx(snr_db, abs=2.5)
+
+
+def test_no_echo_gives_nan_and_a_reason():
+    rng = np.random.default_rng(1)
+    r = FILTERS["oa"](rng.normal(0, 10, (5, N)))
+    assert np.isnan(r.index).all()
+    assert all(s.startswith("no echo: SNR") for s in r.reason)
+
+
+@given(gap=st.floats(25, 300), second=st.floats(0.2, 1.0), seed=st.integers(0, 2**31))
+@settings(max_examples=40)
+def test_two_echoes_give_the_first(gap, second, seed):
+    rng = np.random.default_rng(seed)
+    x = pulse_at(US, 300.3, 1000) + pulse_at(US, 300.3 + gap, 1000 * second)
+    x += rng.normal(0, 5, N)
+    r = FILTERS["us"](x[None, :])
+    assert abs(r.index[0] - 300.3) < 0.05
+
+
+def test_trigger_phase_and_pretrigger_removal_is_exact():
+    x = np.stack([pulse_at(US, 400.0, 1000), pulse_at(US, 400.0, 1000)])
+    r = FILTERS["us"](x)
+    phase_s = np.array([0.0, 37 / 240e6])
+    t = r.times_s(FS, phase_s, pretrigger=64)
+    assert t[1] - t[0] == pytest.approx(37 / 240e6, abs=1e-15)
+    assert t[0] == pytest.approx((r.index[0] - 64) / FS)
+
+
+def test_gate_limits_where_an_echo_may_be():
+    x = pulse_at(US, 100.0, 3000) + pulse_at(US, 600.0, 1000)
+    r = FILTERS["us"](x[None, :], gate=(300, 1000))
+    assert abs(r.index[0] - 600.0) < 0.01
+
+
+def test_range_models():
+    c = speed_of_sound_mm_s(20.0)
+    assert c == pytest.approx(343_214, rel=1e-4)
+    t = np.array([2e-6 + 10 / c])
+    assert distance_mm(t, 2e-6, c, "oa")[0] == pytest.approx(10.0)
+    assert distance_mm(t, 2e-6, c, "us")[0] == pytest.approx(5.0)

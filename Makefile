@@ -109,6 +109,8 @@ test: deps build gen-check lint test-c fuzz
 bench: deps firmware
 	$(PY) bench/protocol.py
 	$(PY) bench/firmware.py
+	$(PY) bench/links.py
+	$(PY) bench/ranging.py
 
 ## ---------------------------------------------------------------- demo
 demo: deps

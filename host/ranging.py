@@ -90,14 +90,14 @@ class MatchedFilter:
         # single precision for the batch work: 2x less memory traffic, ample for 1e-4 sample
         self.R = self.R.astype(np.complex64)
         # the refinement only needs the bins where the template has energy
-        self.band = np.nonzero(np.abs(self.R) > 1e-4 * np.abs(self.R).max())[0]
+        self.band = np.nonzero(np.abs(self.R) > 3e-3 * np.abs(self.R).max())[0]
         self.coarse = self.coarse[self.band].astype(np.complex64)
         self.fine = self.fine[self.band].astype(np.complex64)
         self.lag_phase = np.ascontiguousarray(self.lag_phase[:, self.band])
 
     def __call__(self, x: np.ndarray, gate: tuple[int, int] | None = None,
                  noise: slice | None = None, min_snr_db: float = 15.0,
-                 chunk: int = 256) -> Arrivals:
+                 chunk: int = 128) -> Arrivals:
         """Arrivals in waveforms x (n_shots, n_samples) of baseline-free counts."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float32))
         if len(x) > chunk:  # cache-sized batches
@@ -134,7 +134,7 @@ class MatchedFilter:
         win = np.clip(first[:, None] + np.arange(span), 0, seg.shape[1] - 1)
         vals = seg[rows[:, None], win]
         k0 = win[rows, vals.argmax(axis=1)] + k_lo
-        Cs = C[:, self.band] * self.lag_phase[k0 % n]  # lag k0 moved to the origin
+        Cs = C[:, self.band] * self.lag_phase[k0 % n]  # lag k0 moved to the origin (in band)
         best = self.coarse_offsets[(Cs @ self.coarse).real.argmax(axis=1)]  # right cycle
         step = np.round(best).astype(int)
         Cs *= self.lag_phase[step % n]

@@ -111,6 +111,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("--calibration", type=Path, default=Path("ranging.json"))
     p.add_argument("--modality", choices=MODALITIES, default="oa")
+    p.add_argument("--temperature", type=float, default=None,
+                   help="use c from this air temperature (degC) instead of the fitted c")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_range)
 
@@ -155,6 +157,8 @@ def cmd_range(args: argparse.Namespace) -> int:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
     if args.modality not in setup.cals:
         raise CliError(f"{args.calibration} has no {args.modality.upper()} calibration")
+    if args.temperature is not None:
+        setup.cals[args.modality].c_mm_s = speed_of_sound_mm_s(args.temperature)
     try:
         with h5py.File(args.file, "r") as f:
             d = f["/entry/data"]

@@ -6,6 +6,9 @@ and envelope peak). Targets (DESIGN.md §8): RMSE <= 1.2 CRB at >= 20 dB, |bias|
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # "one core": no BLAS threads
 import sys
 import time
 

@@ -79,10 +79,10 @@ class MatchedFilter:
         f = np.fft.rfftfreq(n_samples, 1 / template.fs_hz)
         power = np.abs(self.R) ** 2
         self.fc_hz = float((f * power).sum() / power.sum())
-        # cycle choice on the band-limited correlation: quarter-sample grid over +-1 period
+        # cycle choice on the band-limited correlation: half-sample grid over +-1 period
         self.period = template.fs_hz / self.fc_hz
         reach = int(np.ceil(self.period))
-        self.coarse_offsets = np.arange(-4 * reach, 4 * reach + 1) / 4
+        self.coarse_offsets = np.arange(-2 * reach, 2 * reach + 1) / 2
         self.coarse = w[:, None] * np.exp(1j * np.outer(self.omega, self.coarse_offsets))
         # e^{j w k0} for every integer lag: moving lag k0 to the origin without exp()
         self.lag_phase = np.exp(1j * np.outer(np.arange(n_samples), self.omega)).astype(

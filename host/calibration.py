@@ -1,0 +1,218 @@
+"""Scanner calibration (paper §IV): v from tip frames, edges as Plücker lines, n and X_R from a
+turntable rotation, then the joint maximum-likelihood refinement with covariances.
+
+Plain functions on numpy arrays. Points are X = S + d v (eq. 1) in the sensor frame {0} (mm).
+X_R is fixed to the point of the turntable axis with z = 0 (the gauge of Table I).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+
+class CalibrationError(ValueError):
+    """The data cannot determine the parameters; the message names the problem and the fix."""
+
+
+def unit(x: np.ndarray) -> np.ndarray:
+    """x / |x|."""
+    x = np.asarray(x, dtype=float)
+    return x / np.linalg.norm(x)
+
+
+def rodrigues(n: np.ndarray, theta_rad: float) -> np.ndarray:
+    """R_n(theta) = I + sin(theta)[n]x + (1 - cos(theta))[n]x^2 (eq. 5)."""
+    n = unit(n)
+    k = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return np.eye(3) + np.sin(theta_rad) * k + (1 - np.cos(theta_rad)) * (k @ k)
+
+
+def tangent_basis(u: np.ndarray) -> np.ndarray:
+    """3x2 orthonormal basis of the plane perpendicular to the unit vector u."""
+    a = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+    b1 = unit(np.cross(u, a))
+    return np.column_stack([b1, np.cross(u, b1)])
+
+
+def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """u moved on the sphere by the tangent step basis @ delta (no pole singularity)."""
+    return unit(u + basis @ delta)
+
+
+# ---------------------------------------------------------------- closed-form estimates
+def estimate_v(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """v and the tip point from tip center points of >= 2 depths (eq. 2).
+
+    All S_c + d_c v are the same tip point, so S_c - S_mean = -(d_c - d_mean) v; the least
+    squares solution points from sensor to target because depths grow away from it."""
+    S, d = np.asarray(S, float), np.asarray(d, float)
+    if len(S) < 2 or np.ptp(d) < 1e-9:
+        raise CalibrationError("need tip frames at two or more depths: step the sensor along "
+                               "the beam between tip frames")
+    v = unit(-(S - S.mean(axis=0)).T @ (d - d.mean()))  # least squares of dS = -dd v
+    tip = (S + d[:, None] * v).mean(axis=0)
+    return v, tip
+
+
+def fit_line(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(direction q, moment m = centroid x q, centroid) of points by SVD (eqs. 3-4)."""
+    X = np.asarray(X, float)
+    if len(X) < 2:
+        raise CalibrationError("an edge frame needs two or more center points")
+    c = X.mean(axis=0)
+    _, s, vt = np.linalg.svd(X - c)
+    if s[0] < 1e-9:
+        raise CalibrationError("the edge center points of a frame coincide: scan the edge "
+                               "at two or more heights")
+    q = vt[0]
+    if q[2] < 0:
+        q = -q
+    return q, np.cross(c, q), c
+
+
+def estimate_axis(lines: list[tuple[np.ndarray, np.ndarray]], thetas_deg: list[float]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """n and X_R (z = 0) from edges (q, point) of frames at turntable angles theta (deg).
+
+    n: the edges are the same filament turned about n, so n is the common direction the
+    rotations preserve; for a filament standing along the axis it is the mean direction,
+    otherwise the normal of the differences of the directions. X_R: where each edge crosses
+    z = 0, the rotation maps one crossing onto the next; solved in the plane of the table."""
+    th = np.radians(np.asarray(thetas_deg, float))
+    if len(lines) < 2:
+        raise CalibrationError("need edge frames at two or more turntable angles")
+    for i in range(1, len(th)):
+        if abs(np.angle(np.exp(1j * (th[i] - th[0])))) < np.radians(1.0):
+            raise CalibrationError(f"edge frames 0 and {i} have the same turntable angle: "
+                                   f"rotate the table between them")
+    q = np.array([ln[0] for ln in lines])
+    diffs = q[1:] - q[0]
+    if np.linalg.norm(diffs, axis=1).max() < 1e-3:
+        n = unit(q.mean(axis=0))
+    else:
+        _, _, vt = np.linalg.svd(diffs)
+        n = vt[-1]
+    if n[2] < 0:
+        n = -n
+    # crossings of each edge with z = 0
+    P = []
+    for qi, pi in lines:
+        if abs(qi[2]) < 1e-6:
+            raise CalibrationError("an edge is parallel to the table: hold the filament "
+                                   "vertically for edge frames")
+        P.append(pi - qi * pi[2] / qi[2])
+    rows, rhs = [], []
+    for i in range(1, len(lines)):
+        R = rodrigues(n, th[i] - th[0])
+        rows.append(np.eye(3) - R)
+        rhs.append(P[i] - R @ P[0])
+    A = np.vstack(rows)
+    A = np.column_stack([A[:, 0], A[:, 1]])  # X_R = (x, y, 0)
+    sol, *_ = np.linalg.lstsq(A, np.concatenate(rhs), rcond=None)
+    return n, np.array([sol[0], sol[1], 0.0])
+
+
+# ---------------------------------------------------------------- maximum likelihood
+@dataclass
+class CalibrationData:
+    """Center points with their covariances (§IV-C) and turntable readings."""
+
+    tip_S: np.ndarray          # (k, 3) stage readings of tip center points (mm)
+    tip_d: np.ndarray          # (k,) depths (mm)
+    edge_S: np.ndarray         # (m, 3)
+    edge_d: np.ndarray         # (m,)
+    edge_frame: np.ndarray     # (m,) frame index 0..F-1
+    theta_deg: np.ndarray      # (F,) turntable reading per edge frame
+    sigma_S_mm: float = 0.01   # stage reading noise of a center point (per axis)
+    sigma_d_mm: float = 0.02   # depth noise of a center point
+    sigma_theta_deg: float = 0.01
+    filament_radius_mm: float = 0.0  # edge hits are on the front surface: moved onto the axis
+
+
+@dataclass
+class CalibrationResult:
+    """Estimates with standard deviations and the fit's residual."""
+
+    v: np.ndarray
+    n: np.ndarray
+    X_R: np.ndarray
+    std: dict[str, np.ndarray] = field(default_factory=dict)
+    cov: np.ndarray | None = None
+    rms_residual_mm: float = 0.0
+    svd: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
+    """SVD estimates (eqs. 2-7), then the joint MLE (eq. 8) by Levenberg-Marquardt."""
+    v0, tip0 = estimate_v(data.tip_S, data.tip_d)
+    frames = np.unique(data.edge_frame)
+    if len(frames) < 2:
+        raise CalibrationError("need edge frames at two or more turntable angles")
+    lines, thetas = [], []
+    for f in frames:
+        sel = data.edge_frame == f
+        X = data.edge_S[sel] + data.edge_d[sel, None] * v0 + data.filament_radius_mm * v0
+        q, _, c = fit_line(X)
+        lines.append((q, c))
+        thetas.append(data.theta_deg[int(f)])
+    n0, xr0 = estimate_axis(lines, thetas)
+    svd = {"v": v0, "n": n0, "X_R": xr0}
+    if not refine:
+        return CalibrationResult(v0, n0, xr0, svd=svd)
+    # filament line in the table frame at theta = 0: through point p0 with direction l0
+    R0 = rodrigues(n0, -np.radians(thetas[0]))
+    l0 = R0 @ lines[0][0]
+    p0 = xr0 + R0 @ (lines[0][1] - xr0)
+    Bv, Bn, Bl = tangent_basis(v0), tangent_basis(n0), tangent_basis(unit(l0))
+    F = len(frames)
+
+    def unpack(p: np.ndarray) -> tuple:
+        v = retract(v0, Bv, p[0:2])
+        n = retract(n0, Bn, p[2:4])
+        xr = np.array([p[4], p[5], 0.0])
+        l = retract(unit(l0), Bl, p[6:8])
+        pt = p0 + Bl @ p[8:10]  # the line's point moves across the line only
+        tip = p[10:13]
+        th = p[13:13 + F]
+        return v, n, xr, l, pt, tip, th
+
+    def residuals(p: np.ndarray, whiten: bool = True) -> np.ndarray:
+        v, n, xr, l, pt, tip, th = unpack(p)
+        sig_tip = np.sqrt(data.sigma_S_mm ** 2 + data.sigma_d_mm ** 2) if whiten else 1.0
+        r = [((data.tip_S + data.tip_d[:, None] * v) - tip).ravel() / sig_tip]
+        for i, f in enumerate(frames):
+            sel = data.edge_frame == f
+            X = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v
+            R = rodrigues(n, np.radians(th[i]))
+            li = R @ l
+            pi = xr + R @ (pt - xr)
+            rel = X - pi
+            perp = rel - np.outer(rel @ li, li)  # distance vector to the line
+            B = tangent_basis(li)
+            # noise of a point across the line: stage noise + depth noise along v
+            cov = (data.sigma_S_mm ** 2) * np.eye(2) + data.sigma_d_mm ** 2 * np.outer(
+                B.T @ v, B.T @ v)
+            L = np.linalg.cholesky(np.linalg.inv(cov)) if whiten else np.eye(2)
+            r.append((perp @ B @ L).ravel())
+        if whiten:
+            r.append((th - np.asarray(thetas)) / data.sigma_theta_deg)
+        return np.concatenate(r)
+
+    p_init = np.concatenate([np.zeros(4), xr0[:2], np.zeros(4), tip0, thetas])
+    sol = least_squares(residuals, p_init, method="lm", x_scale="jac")
+    v, n, xr, *_ = unpack(sol.x)
+    J = sol.jac
+    cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
+    # to Cartesian: v, n via their tangent bases, X_R x y
+    Jv = np.zeros((9, len(sol.x)))
+    Jv[0:3, 0:2] = Bv
+    Jv[3:6, 2:4] = Bn
+    Jv[6, 4] = Jv[7, 5] = 1.0
+    cov = Jv @ cov_p @ Jv.T
+    sd = np.sqrt(np.maximum(np.diag(cov), 0))
+    rms_mm = float(np.sqrt(np.mean(residuals(sol.x, whiten=False) ** 2)))
+    return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
+                             cov, rms_mm, svd)

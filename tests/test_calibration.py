@@ -1,0 +1,91 @@
+"""Scanner calibration solvers: exact recovery without noise, honest covariances with noise."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dmdsm.host.calibration import (
+    CalibrationData,
+    CalibrationError,
+    estimate_axis,
+    rodrigues,
+    solve,
+    unit,
+)
+
+V = unit(np.array([0.0656, 0.9955, -0.0678]))
+N = unit(np.array([-0.0007, 0.0022, 0.9999]))
+XR = np.array([235.21, 288.17, 0.0])
+
+
+def synth(v=V, n=N, xr=XR, thetas=(0.0, 180.0), noise=(0.0, 0.0, 0.0), seed=0, radius=0.0,
+          tip_depths=(4.0, 6.0, 8.0, 10.0), heights=(10, 15, 20, 25, 30, 35, 40)):
+    """Center points as the paper's procedure would record them, from true parameters."""
+    rng = np.random.default_rng(seed)
+    sS, sd, sth = noise
+    tip = xr + np.array([0.0, -20.0, 20.0])
+    d_tip = np.asarray(tip_depths, float)
+    S_tip = tip - d_tip[:, None] * v
+    # vertical filament (axis) 25 mm off the table centre, along n
+    base = xr + np.array([25.0, 0.0, 0.0])
+    S_e, d_e, fr = [], [], []
+    for i, th in enumerate(thetas):
+        R = rodrigues(n, np.radians(th))
+        for h in heights:
+            axis_pt = xr + R @ (base + h * n - xr)
+            surf = axis_pt - radius * v  # the beam meets the front surface
+            d = 6.0 + 0.5 * (h % 3)
+            S_e.append(surf - d * v)
+            d_e.append(d)
+            fr.append(i)
+    S_e, d_e = np.array(S_e), np.array(d_e)
+    data = CalibrationData(
+        S_tip + rng.normal(0, sS, S_tip.shape), d_tip + rng.normal(0, sd, d_tip.shape),
+        S_e + rng.normal(0, sS, S_e.shape), d_e + rng.normal(0, sd, d_e.shape),
+        np.array(fr), np.array(thetas) + rng.normal(0, sth, len(thetas)),
+        sigma_S_mm=max(sS, 1e-6), sigma_d_mm=max(sd, 1e-6), sigma_theta_deg=max(sth, 1e-6),
+        filament_radius_mm=radius)
+    return data
+
+
+def test_noise_free_data_is_recovered_exactly():
+    r = solve(synth(radius=0.25))
+    assert np.allclose(r.v, V, atol=1e-9) and np.allclose(r.n, N, atol=1e-9)
+    assert np.allclose(r.X_R, XR, atol=1e-9)
+    assert np.allclose(r.svd["X_R"], XR, atol=1e-9)
+
+
+def test_filament_radius_is_corrected():
+    wrong = solve(synth(radius=0.25), refine=False)
+    d = synth(radius=0.25)
+    d.filament_radius_mm = 0.0  # pretending the hits are on the axis biases X_R
+    biased = solve(d, refine=False)
+    assert np.linalg.norm(wrong.X_R - XR) < 1e-9
+    assert np.linalg.norm(biased.X_R - XR) > 0.2
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), tilt=st.floats(0.0, 0.05), turn=st.floats(60, 180))
+def test_errors_are_within_4_sigma_of_the_reported_covariance(seed, tilt, turn):
+    rng = np.random.default_rng(seed)
+    n = unit(N + tilt * rng.normal(size=3))
+    v = unit(V + 0.05 * rng.normal(size=3))
+    data = synth(v=v, n=n, thetas=(0.0, turn), noise=(0.01, 0.02, 0.01), seed=seed)
+    r = solve(data)
+    for name, true in (("v", v), ("n", n), ("X_R", np.array([XR[0], XR[1], 0.0]))):
+        err = getattr(r, name) - true
+        sd = np.maximum(r.std[name], 1e-12)
+        assert (np.abs(err) <= 4 * sd + 1e-9).all(), (name, err, sd)
+
+
+def test_degenerate_data_gets_a_clear_error():
+    d = synth()
+    with pytest.raises(CalibrationError, match="tip frames at two or more depths"):
+        solve(CalibrationData(d.tip_S[:1], d.tip_d[:1], d.edge_S, d.edge_d, d.edge_frame,
+                              d.theta_deg))
+    same = synth(thetas=(30.0, 30.0))
+    with pytest.raises(CalibrationError, match="same turntable angle: rotate"):
+        solve(same)
+    with pytest.raises(CalibrationError, match="two or more turntable angles"):
+        estimate_axis([(N, XR)], [0.0])

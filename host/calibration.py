@@ -37,6 +37,17 @@ def tangent_basis(u: np.ndarray) -> np.ndarray:
     return np.column_stack([b1, np.cross(u, b1)])
 
 
+def tangent_errors(result: CalibrationResult, name: str, true: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Error of unit vector `name` ('v' or 'n') in its tangent plane and the matching standard
+    deviations: the two first-order coordinates a unit vector has."""
+    i = {"v": 0, "n": 3}[name]
+    est = getattr(result, name)
+    B = tangent_basis(est)
+    cov = B.T @ result.cov[i:i + 3, i:i + 3] @ B
+    return B.T @ (est - true), np.sqrt(np.maximum(np.diag(cov), 0))
+
+
 def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """u moved on the sphere by the tangent step basis @ delta (no pole singularity)."""
     return unit(u + basis @ delta)
@@ -181,8 +192,10 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
 
     def residuals(p: np.ndarray, whiten: bool = True) -> np.ndarray:
         v, n, xr, l, pt, tip, th = unpack(p)
-        sig_tip = np.sqrt(data.sigma_S_mm ** 2 + data.sigma_d_mm ** 2) if whiten else 1.0
-        r = [((data.tip_S + data.tip_d[:, None] * v) - tip).ravel() / sig_tip]
+        # a tip point's noise: stage reading (all axes) plus depth along v
+        cov_tip = data.sigma_S_mm ** 2 * np.eye(3) + data.sigma_d_mm ** 2 * np.outer(v, v)
+        W = np.linalg.cholesky(np.linalg.inv(cov_tip)) if whiten else np.eye(3)
+        r = [(((data.tip_S + data.tip_d[:, None] * v) - tip) @ W).ravel()]
         for i, f in enumerate(frames):
             sel = data.edge_frame == f
             X = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v

@@ -184,14 +184,14 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         v = retract(v0, Bv, p[0:2])
         n = retract(n0, Bn, p[2:4])
         xr = np.array([p[4], p[5], 0.0])
-        l = retract(unit(l0), Bl, p[6:8])
+        q = retract(unit(l0), Bl, p[6:8])  # filament direction at theta = 0
         pt = p0 + Bl @ p[8:10]  # the line's point moves across the line only
         tip = p[10:13]
         th = p[13:13 + F]
-        return v, n, xr, l, pt, tip, th
+        return v, n, xr, q, pt, tip, th
 
     def residuals(p: np.ndarray, whiten: bool = True) -> np.ndarray:
-        v, n, xr, l, pt, tip, th = unpack(p)
+        v, n, xr, q, pt, tip, th = unpack(p)
         # a tip point's noise: stage reading (all axes) plus depth along v
         cov_tip = data.sigma_S_mm ** 2 * np.eye(3) + data.sigma_d_mm ** 2 * np.outer(v, v)
         W = np.linalg.cholesky(np.linalg.inv(cov_tip)) if whiten else np.eye(3)
@@ -200,7 +200,7 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
             sel = data.edge_frame == f
             X = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v
             R = rodrigues(n, np.radians(th[i]))
-            li = R @ l
+            li = R @ q
             pi = xr + R @ (pt - xr)
             rel = X - pi
             perp = rel - np.outer(rel @ li, li)  # distance vector to the line

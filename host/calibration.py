@@ -141,6 +141,24 @@ class CalibrationData:
     sigma_d_mm: float = 0.02   # depth noise of a center point
     sigma_theta_deg: float = 0.01
     filament_radius_mm: float = 0.0  # edge hits are on the front surface: moved onto the axis
+    # per-point covariances (§IV-C: Sigma_ij = Sigma_P / n, sigma_ij = sigma_P / n); when
+    # given they replace the scalar sigmas above
+    tip_cov_S: np.ndarray | None = None   # (k, 3, 3) mm^2
+    tip_var_d: np.ndarray | None = None   # (k,) mm^2
+    edge_cov_S: np.ndarray | None = None  # (m, 3, 3)
+    edge_var_d: np.ndarray | None = None  # (m,)
+
+    def point_covs(self, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """(cov_S (k,3,3), var_d (k,)) of the tip or edge center points."""
+        n = len(self.tip_d if which == "tip" else self.edge_d)
+        cs = getattr(self, f"{which}_cov_S")
+        vd = getattr(self, f"{which}_var_d")
+        if cs is None:
+            cs = np.broadcast_to(self.sigma_S_mm ** 2 * np.eye(3), (n, 3, 3))
+        if vd is None:
+            vd = np.full(n, self.sigma_d_mm ** 2)
+        # a floor keeps single-point frames from claiming zero noise
+        return cs + 1e-12 * np.eye(3), np.maximum(vd, 1e-12)
 
 
 @dataclass
@@ -179,6 +197,8 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     p0 = xr0 + R0 @ (lines[0][1] - xr0)
     Bv, Bn, Bl = tangent_basis(v0), tangent_basis(n0), tangent_basis(unit(l0))
     F = len(frames)
+    tip_cS, tip_vd = data.point_covs("tip")
+    edge_cS, edge_vd = data.point_covs("edge")
 
     def unpack(p: np.ndarray) -> tuple:
         v = retract(v0, Bv, p[0:2])
@@ -192,10 +212,13 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
 
     def residuals(p: np.ndarray, whiten: bool = True) -> np.ndarray:
         v, n, xr, q, pt, tip, th = unpack(p)
-        # a tip point's noise: stage reading (all axes) plus depth along v
-        cov_tip = data.sigma_S_mm ** 2 * np.eye(3) + data.sigma_d_mm ** 2 * np.outer(v, v)
-        W = np.linalg.cholesky(np.linalg.inv(cov_tip)) if whiten else np.eye(3)
-        r = [(((data.tip_S + data.tip_d[:, None] * v) - tip) @ W).ravel()]
+        # a tip point's noise: its stage reading covariance plus its depth variance along v
+        X = data.tip_S + data.tip_d[:, None] * v - tip
+        if whiten:
+            cov = tip_cS + tip_vd[:, None, None] * np.outer(v, v)
+            W = np.linalg.cholesky(np.linalg.inv(cov))  # (k, 3, 3)
+            X = np.einsum("ki,kij->kj", X, W)
+        r = [X.ravel()]
         for i, f in enumerate(frames):
             sel = data.edge_frame == f
             X = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v
@@ -203,13 +226,14 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
             li = R @ q
             pi = xr + R @ (pt - xr)
             rel = X - pi
-            perp = rel - np.outer(rel @ li, li)  # distance vector to the line
-            B = tangent_basis(li)
-            # noise of a point across the line: stage noise + depth noise along v
-            cov = (data.sigma_S_mm ** 2) * np.eye(2) + data.sigma_d_mm ** 2 * np.outer(
-                B.T @ v, B.T @ v)
-            L = np.linalg.cholesky(np.linalg.inv(cov)) if whiten else np.eye(2)
-            r.append((perp @ B @ L).ravel())
+            perp = (rel - np.outer(rel @ li, li)) @ tangent_basis(li)  # across the line
+            if whiten:
+                B = tangent_basis(li)
+                cov = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B) + \
+                    edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+                W = np.linalg.cholesky(np.linalg.inv(cov))
+                perp = np.einsum("ki,kij->kj", perp, W)
+            r.append(perp.ravel())
         if whiten:
             r.append((th - np.asarray(thetas)) / data.sigma_theta_deg)
         return np.concatenate(r)

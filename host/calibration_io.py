@@ -1,0 +1,154 @@
+"""Calibration data files (one row per raw point) to center points, and the result file;
+`dmdsm calibrate --from-data FILE`."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .calibration import CalibrationData, CalibrationError, CalibrationResult, solve
+
+COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
+           "amplitude", "modality")
+
+
+def read_raw(path: Path) -> dict[str, np.ndarray]:
+    """The raw points of a calibration CSV; extra columns are ignored."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as e:
+        raise CalibrationError(f"cannot read {path}: {e.strerror}") from None
+    if not rows:
+        raise CalibrationError(f"{path} has no data rows")
+    missing = [c for c in COLUMNS if c not in rows[0]]
+    if missing:
+        raise CalibrationError(f"{path} lacks column(s) {', '.join(missing)} (expected: "
+                               f"{', '.join(COLUMNS)}; see docs/calibration.md)")
+    out: dict[str, np.ndarray] = {}
+    for c in COLUMNS:
+        vals = [r[c] for r in rows]
+        if c in ("step", "modality"):
+            out[c] = np.array([v.strip().lower() for v in vals])
+        else:
+            try:
+                out[c] = np.array([float(v) if v.strip() not in ("", "nan", "NaN") else np.nan
+                                   for v in vals])
+            except ValueError:
+                raise CalibrationError(f"{path}: column {c} has a value that is not a "
+                                       f"number") from None
+    return out
+
+
+def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float
+            ) -> tuple[np.ndarray, float, np.ndarray, float] | None:
+    """Center point of raw points above threshold x max amplitude (§IV-C)."""
+    ok = np.isfinite(d) & np.isfinite(amp)
+    if not ok.any():
+        return None
+    keep = ok & (amp >= threshold * np.nanmax(amp[ok]))
+    n = int(keep.sum())
+    if n < 1:
+        return None
+    Sk, dk = S[keep], d[keep]
+    cov = np.cov(Sk.T) / n if n > 1 else np.zeros((3, 3))
+    var = float(np.var(dk, ddof=1) / n) if n > 1 else 0.0
+    return Sk.mean(axis=0), float(dk.mean()), cov, var
+
+
+def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: float = 0.5,
+                  radius_mm: float = 0.25, sigma_theta_deg: float = 0.01) -> CalibrationData:
+    """Tip center points per tip frame; edge center points per scan line of each edge frame."""
+    sel = raw["modality"] == modality
+    S = np.column_stack([raw["sx_mm"], raw["sy_mm"], raw["sz_mm"]])
+    tips, edges = [], []
+    thetas: dict[int, float] = {}
+    for f in np.unique(raw["frame"][sel & (raw["step"] == "tip")]):
+        m = sel & (raw["step"] == "tip") & (raw["frame"] == f)
+        c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
+        if c is not None:
+            tips.append(c)
+    edge_frames = np.unique(raw["frame"][sel & (raw["step"] == "edge")])
+    for i, f in enumerate(edge_frames):
+        fm = sel & (raw["step"] == "edge") & (raw["frame"] == f)
+        thetas[i] = float(np.nanmedian(raw["theta_deg"][fm]))
+        for ln in np.unique(raw["line"][fm]):
+            m = fm & (raw["line"] == ln)
+            c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
+            if c is not None:
+                edges.append((i, *c))
+    if len(tips) < 2:
+        raise CalibrationError(f"{len(tips)} tip frame(s) with {modality.upper()} points above "
+                               f"threshold: record tip frames at two or more depths")
+    if len(thetas) < 2:
+        raise CalibrationError("need edge frames at two or more turntable angles")
+    return CalibrationData(
+        np.array([t[0] for t in tips]), np.array([t[1] for t in tips]),
+        np.array([e[1] for e in edges]), np.array([e[2] for e in edges]),
+        np.array([e[0] for e in edges]), np.array([thetas[i] for i in range(len(thetas))]),
+        sigma_theta_deg=sigma_theta_deg, filament_radius_mm=radius_mm,
+        tip_cov_S=np.array([t[2] for t in tips]), tip_var_d=np.array([t[3] for t in tips]),
+        edge_cov_S=np.array([e[3] for e in edges]), edge_var_d=np.array([e[4] for e in edges]))
+
+
+def result_dict(r: CalibrationResult) -> dict:
+    """The JSON form `dmdsm calibrate --json` prints."""
+    return {"v": r.v.tolist(), "n": r.n.tolist(), "X_R": r.X_R.tolist(),
+            "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
+            "rms_residual_mm": r.rms_residual_mm}
+
+
+def write_result(r: CalibrationResult, path: Path, source: str) -> None:
+    """The calibration TOML that dmdsm commands load ([calibration] section)."""
+    def vec(x: np.ndarray) -> str:
+        return "[" + ", ".join(f"{float(a):.9g}" for a in x) + "]"
+    lines = ["# dmdsm scanner calibration (paper Table I layout)", "[calibration]",
+             f"v = {vec(r.v)}", f"n = {vec(r.n)}", f"X_R = {vec(r.X_R)}",
+             f"v_std = {vec(r.std['v'])}", f"n_std = {vec(r.std['n'])}",
+             f"X_R_std = {vec(r.std['X_R'])}", f"rms_residual_mm = {r.rms_residual_mm:.6g}",
+             f"source = {json.dumps(source)}",
+             f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",
+             f"software = \"dmdsm {__version__}\""]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register `calibrate`."""
+    p = sub.add_parser("calibrate", help="solve v, n, X_R from recorded rig data")
+    p.add_argument("--from-data", type=Path, required=True, help="calibration CSV")
+    p.add_argument("--modality", choices=["oa", "us"], default="oa")
+    p.add_argument("--threshold", type=float, default=0.5,
+                   help="keep raw points above this fraction of the frame's max amplitude")
+    p.add_argument("--radius", type=float, default=0.25, help="filament radius (mm)")
+    p.add_argument("-o", "--output", type=Path, default=Path("calibration.toml"))
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_calibrate)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Solve from a data file, save the TOML, print Table I with +- std (or JSON)."""
+    from .cli import CliError
+
+    try:
+        data = center_points(read_raw(args.from_data), args.modality, args.threshold,
+                             args.radius)
+        r = solve(data)
+    except CalibrationError as e:
+        raise CliError(str(e)) from None
+    write_result(r, args.output, str(args.from_data))
+    if args.json:
+        print(json.dumps(result_dict(r)))
+        return 0
+    for name in ("v", "n", "X_R"):
+        val, sd = getattr(r, name), r.std[name]
+        unit = " (mm)" if name == "X_R" else ""
+        print(f"{name + unit:<9} [" + "; ".join(f"{a:9.4f} ± {b:.4f}" for a, b in zip(val, sd))
+              + "]")
+    print(f"rms residual {r.rms_residual_mm * 1000:.1f} um; saved {args.output}")
+    return 0

@@ -1,0 +1,75 @@
+"""`dmdsm calibrate --from-data`: raw points to center points to Table I, with clear errors."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+from test_calibration import N, V, XR, synth
+
+
+def write_raw(path, data, radius=0.25, drop=None):
+    """Raw raster points around each synthetic center point (symmetric, so exact centers)."""
+    cols = ["step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
+            "amplitude", "modality", "extra"]
+    if drop:
+        cols.remove(drop)
+    rows = []
+    offs = np.linspace(-0.4, 0.4, 9)
+    for c, (S, d) in enumerate(zip(data.tip_S, data.tip_d)):
+        for ox in offs:
+            for oz in offs:
+                rows.append(dict(step="tip", frame=c, line=0, theta_deg=0.0,
+                                 sx_mm=S[0] + ox, sy_mm=S[1], sz_mm=S[2] + oz, d_mm=d,
+                                 amplitude=np.exp(-(ox ** 2 + oz ** 2) / 0.05),
+                                 modality="oa", extra="x"))
+    for j, (S, d, f) in enumerate(zip(data.edge_S, data.edge_d, data.edge_frame)):
+        for ox in offs:
+            rows.append(dict(step="edge", frame=10 + f, line=j, theta_deg=data.theta_deg[f],
+                             sx_mm=S[0] + ox, sy_mm=S[1], sz_mm=S[2], d_mm=d,
+                             amplitude=np.exp(-ox ** 2 / 0.02), modality="oa", extra="y"))
+        rows.append(dict(step="edge", frame=10 + f, line=j, theta_deg=data.theta_deg[f],
+                         sx_mm=S[0], sy_mm=S[1], sz_mm=S[2], d_mm="nan", amplitude=0.0,
+                         modality="oa", extra="no echo"))
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+
+
+def dmdsm(*args):
+    return subprocess.run([sys.executable, "-m", "dmdsm.host", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_calibrate_from_data_recovers_table_i(tmp_path):
+    raw = tmp_path / "rig.csv"
+    write_raw(raw, synth(radius=0.25))
+    out = tmp_path / "cal.toml"
+    r = dmdsm("calibrate", "--from-data", str(raw), "--radius", "0.25", "-o", str(out),
+              "--json")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert np.allclose(res["v"], V, atol=1e-6) and np.allclose(res["n"], N, atol=1e-6)
+    assert np.allclose(res["X_R"], XR, atol=1e-5)
+    assert set(res["std"]) == {"v", "n", "X_R"} and "rms_residual_mm" in res
+    text = out.read_text()
+    assert text.startswith("# dmdsm scanner calibration") and "X_R_std" in text
+    r = dmdsm("calibrate", "--from-data", str(raw), "--radius", "0.25", "-o", str(out))
+    assert r.returncode == 0 and r.stdout.startswith("v ")
+
+
+def test_bad_files_give_one_line_errors(tmp_path):
+    raw = tmp_path / "rig.csv"
+    write_raw(raw, synth(), drop="d_mm")
+    r = dmdsm("calibrate", "--from-data", str(raw))
+    assert r.returncode == 2 and "lacks column(s) d_mm" in r.stderr
+    d = synth(tip_depths=(5.0,))
+    write_raw(raw, d)
+    r = dmdsm("calibrate", "--from-data", str(raw))
+    assert r.returncode == 2 and "tip frames at two or more depths" in r.stderr
+    r = dmdsm("calibrate", "--from-data", str(tmp_path / "none.csv"))
+    assert r.returncode == 2 and "cannot read" in r.stderr
+    for res in (r,):
+        assert len(res.stderr.strip().splitlines()) == 1

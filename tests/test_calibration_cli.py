@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
-from test_calibration import N, V, XR, synth
+from test_calibration import XR, N, V, synth
 
 
 def write_raw(path, data, radius=0.25, drop=None):

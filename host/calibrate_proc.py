@@ -1,0 +1,100 @@
+"""The calibration procedure of §IV-D with the rig: tip frames, then edge frames, as raw points
+for `calibration_io` (the stage and sensor clients do the I/O; ranging gives d)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .range_cal import RangingSetup
+from .range_cmd import gate_for
+from .ranging import MatchedFilter
+
+
+@dataclass
+class RigPlan:
+    """Where and how to scan (mm, deg); defaults suit the 0.5 mm filament at ~6 mm."""
+
+    tip_start: tuple[float, float, float]   # stage position facing the tip, nearest depth
+    tip_depth_steps: tuple[float, ...] = (0.0, 2.0, 4.0)  # Y steps back (between frames)
+    tip_half_mm: float = 0.4                # in-frame X-Z raster half width
+    tip_step_mm: float = 0.1
+    edge_start: tuple[float, float, float] = (0.0, 0.0, 0.0)  # facing the vertical filament
+    edge_angles_deg: tuple[float, ...] = (0.0, 180.0)
+    edge_z_levels: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
+    edge_half_mm: float = 0.6               # X sweep half width
+    edge_step_mm: float = 0.1
+    shots: int = 1                          # waveforms per raw point
+    average: int = 4                        # shots averaged on board per waveform
+    modality: str = "oa"
+    depth_range_mm: tuple[float, float] = (2.0, 14.0)  # where echoes are searched
+
+
+def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
+             plan: RigPlan, gate: tuple[int, int], x: float, y: float, z: float,
+             a: float) -> tuple[float, float]:
+    """Move, record, range: (d in mm or NaN, amplitude)."""
+    stage.move(x=x, y=y, z=z, a=a, feed_mm_min=3000)
+    stage.wait()
+    got = sensor.acquire(plan.shots)
+    if not got.received.any():
+        return np.nan, 0.0
+    w = got.samples[got.received].astype(float) - 32768.0
+    arr = mf(w, gate=gate)
+    t = arr.times_s(setup.fs_hz, got.trigger_phase[got.received] / sensor.identity.tick_hz)
+    cal = setup.cals[plan.modality]
+    k = 1.0 if plan.modality == "oa" else 2.0
+    d = cal.c_mm_s * (t - cal.t0_s) / k
+    amp = float(np.nanmean(np.where(np.isfinite(arr.index), arr.amplitude, 0.0)))
+    return float(np.nanmean(d)) if np.isfinite(d).any() else np.nan, amp
+
+
+def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
+             step: str, progress: Callable[[int, int], None] | None = None) -> list[dict]:
+    """Raw points of the tip frames (step='tip') or the edge frames (step='edge')."""
+    m = plan.modality
+    if m not in setup.cals:
+        raise ValueError(f"the ranging calibration has no {m.upper()} modality")
+    sensor.configure(n_samples=1024, n_average=plan.average, pretrigger=0,
+                     trigger_timeout_ms=2000)
+    mf = MatchedFilter(setup.templates[m], 1024)
+    c = setup.cals[m].c_mm_s
+    lo, hi = plan.depth_range_mm
+    gate = (gate_for(lo, m, setup.fs_hz, c, 1024)[0], gate_for(hi, m, setup.fs_hz, c, 1024)[1])
+    rows: list[dict] = []
+    if step == "tip":
+        offs = np.arange(-plan.tip_half_mm, plan.tip_half_mm + 1e-9, plan.tip_step_mm)
+        jobs = [(f, 0, plan.tip_start[0] + ox, plan.tip_start[1] - dy, plan.tip_start[2] + oz,
+                 0.0) for f, dy in enumerate(plan.tip_depth_steps) for oz in offs for ox in offs]
+    else:
+        offs = np.arange(-plan.edge_half_mm, plan.edge_half_mm + 1e-9, plan.edge_step_mm)
+        starts = [edge_start_at(plan, th) for th in plan.edge_angles_deg]
+        jobs = [(f, li, starts[f][0] + ox, starts[f][1], z, th)
+                for f, th in enumerate(plan.edge_angles_deg)
+                for li, z in enumerate(plan.edge_z_levels) for ox in offs]
+    for i, (frame, line, x, y, z, th) in enumerate(jobs):
+        d, amp = _measure(stage, sensor, mf, setup, plan, gate, x, y, z, th)
+        rows.append({"step": step, "frame": frame, "line": line, "theta_deg": th,
+                     "sx_mm": x, "sy_mm": y, "sz_mm": z, "d_mm": d, "amplitude": amp,
+                     "modality": m})
+        if progress is not None:
+            progress(i + 1, len(jobs))
+    return rows
+
+
+def edge_start_at(plan: RigPlan, theta_deg: float, nominal_d_mm: float = 6.0
+                  ) -> tuple[float, float]:
+    """Sensor X, Y facing the vertical filament after the table turned to theta: the filament
+    point seen from edge_start, turned about the axis (the paper's n, X_R until calibrated;
+    the sweep width covers their error), backed off along v."""
+    from .calibration import rodrigues
+    from .safety import TABLE_I
+
+    v, n, xr = (np.asarray(TABLE_I[k], float) for k in ("v", "n", "X_R"))
+    v = v / np.linalg.norm(v)
+    f0 = np.asarray(plan.edge_start, float) + nominal_d_mm * v
+    f = xr + rodrigues(n, np.radians(theta_deg)) @ (f0 - xr)
+    s = f - nominal_d_mm * v
+    return float(s[0]), float(s[1])

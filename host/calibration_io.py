@@ -118,10 +118,38 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
     Path(path).write_text("\n".join(lines) + "\n")
 
 
+def append_rows(path: Path, rows: list[dict]) -> None:
+    """Add raw points to a calibration CSV (header written once); flushed per call, so an
+    interrupted scan leaves a readable file."""
+    new = not Path(path).exists() or Path(path).stat().st_size == 0
+    with open(path, "a", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(COLUMNS))
+        if new:
+            w.writeheader()
+        for r in rows:
+            w.writerow({k: ("nan" if isinstance(v, float) and np.isnan(v) else v)
+                        for k, v in r.items()})
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `calibrate`."""
-    p = sub.add_parser("calibrate", help="solve v, n, X_R from recorded rig data")
-    p.add_argument("--from-data", type=Path, required=True, help="calibration CSV")
+    p = sub.add_parser("calibrate", help="scan the rig and solve v, n, X_R (paper §IV)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--from-data", type=Path, help="solve from a calibration CSV")
+    src.add_argument("--step", choices=["tip", "edge"],
+                     help="scan tip frames (filament horizontal) or edge frames (vertical), "
+                          "appending to --data; after the edge step the data is solved")
+    p.add_argument("--sensor")
+    p.add_argument("--stage")
+    p.add_argument("--config", type=Path, default=None)
+    p.add_argument("--ranging", type=Path, default=Path("ranging.json"),
+                   help="from dmdsm calibrate-range")
+    p.add_argument("--data", type=Path, default=Path("rig.csv"), help="raw points (CSV)")
+    p.add_argument("--at", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="stage position facing the tip (tip step) or the filament at "
+                        "angle 0 (edge step; Z is ignored)")
+    p.add_argument("--angles", type=float, nargs="+", default=[0.0, 180.0],
+                   help="turntable angles of the edge frames (deg)")
     p.add_argument("--modality", choices=["oa", "us"], default="oa")
     p.add_argument("--threshold", type=float, default=0.5,
                    help="keep raw points above this fraction of the frame's max amplitude")
@@ -131,17 +159,63 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_calibrate)
 
 
+def _scan(args: argparse.Namespace) -> None:
+    """One step of the procedure against the boards, appended to args.data."""
+    from tqdm import tqdm
+
+    from .calibrate_proc import RigPlan, scan_rig
+    from .cli import CliError
+    from .config import load_config, resolve_port
+    from .range_cal import RangingSetup
+    from .sensor import SensorClient
+    from .stage import StageClient
+
+    if args.at is None:
+        raise CliError("give --at X Y Z: the stage position facing the tip (or the filament)")
+    try:
+        setup = RangingSetup.load(args.ranging)
+    except ValueError as e:
+        raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
+    x, y, z = args.at
+    plan = RigPlan(tip_start=(x, y, z), edge_start=(x, y, 0.0),
+                   edge_angles_deg=tuple(args.angles), modality=args.modality)
+    cfg = load_config(args.config)
+    sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
+    try:
+        with StageClient(resolve_port("stage", args.stage, cfg)) as st, \
+                tqdm(unit="point", disable=args.json, desc=f"{args.step} frames") as bar:
+            def progress(i: int, total: int) -> None:
+                bar.total = total
+                bar.update(i - bar.n)
+            rows = scan_rig(st, sc, setup, plan, args.step, progress)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    finally:
+        sc.close()
+    append_rows(args.data, rows)
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    """Solve from a data file, save the TOML, print Table I with +- std (or JSON)."""
+    """Scan a step, or solve from a data file; save the TOML, print Table I with +- std."""
     from .cli import CliError
 
+    if args.step is not None:
+        _scan(args)
+        if args.step == "tip":
+            if not args.json:
+                print(f"tip frames saved in {args.data}; mount the filament vertically and "
+                      f"run the edge step")
+            else:
+                print(json.dumps({"data": str(args.data), "step": "tip"}))
+            return 0
+    source = args.from_data or args.data
     try:
-        data = center_points(read_raw(args.from_data), args.modality, args.threshold,
+        data = center_points(read_raw(source), args.modality, args.threshold,
                              args.radius)
         r = solve(data)
     except CalibrationError as e:
         raise CliError(str(e)) from None
-    write_result(r, args.output, str(args.from_data))
+    write_result(r, args.output, str(source))
     if args.json:
         print(json.dumps(result_dict(r)))
         return 0

@@ -1,27 +1,37 @@
-"""The whole calibration chain in hil_sim: ranging calibration on the block, tip frames on the
-horizontal filament, edge frames on the vertical one at 0 and 180 deg, then the solver."""
+"""The whole calibration chain in hil_sim through the `dmdsm` commands a user types: ranging
+calibration on the block, tip frames (filament horizontal), edge frames (filament vertical,
+0 and 180 deg), solved into Table I."""
+
+import json
+import subprocess
+import sys
 
 import numpy as np
 
-from dmdsm.host.calibrate_proc import RigPlan, scan_rig
-from dmdsm.host.calibration import solve
-from dmdsm.host.calibration_io import COLUMNS, center_points
-from dmdsm.host.range_cmd import calibrate_range
-from dmdsm.host.sensor import SensorClient
 from dmdsm.host.stage import StageClient
 from dmdsm.sim.objects import rig_horizontal, rig_vertical
 from dmdsm.sim.scene import table_frame
 
 
-def test_calibration_procedure_recovers_table_i_end_to_end(emulator):
+def dmdsm(*args):
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", *args], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def test_calibration_procedure_recovers_table_i_end_to_end(emulator, tmp_path):
     emu = emulator(speed=5.0, scene="aluminium_block", seed=3)
     sim = emu.sim
-    st, sc = StageClient(emu.stage), SensorClient(emu.sensor)
-    st.home()
-    st.move(x=235, y=266, z=20, wait=True)
-    st.wait()
-    setup, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20},
-                               sim.truth()["distance_mm"], steps=21, step_mm=1.0, shots=4)
+    with StageClient(emu.stage) as st:
+        st.home()
+        st.move(x=235, y=266, z=20, wait=True)
+        st.wait()
+    ports = ["--sensor", emu.sensor, "--stage", emu.stage]
+    ranging, data, out = tmp_path / "ranging.json", tmp_path / "rig.csv", tmp_path / "cal.toml"
+    dmdsm("calibrate-range", *ports, "-x", "235", "-y", "266", "-z", "20", "--start-distance",
+          f"{sim.truth()['distance_mm']:.4f}", "--steps", "21", "--step", "1", "--shots", "4",
+          "-o", str(ranging))
 
     def mount(objects):  # the user re-mounts the rig between the two steps
         with emu.server.lock:
@@ -31,18 +41,18 @@ def test_calibration_procedure_recovers_table_i_end_to_end(emulator):
     v = sim.scene.v / np.linalg.norm(sim.scene.v)
     frame = table_frame(sim.scene.n)
     mount(rig_horizontal())
-    tip = sim.scene.X_R + frame @ np.array([0.0, -10.0, 20.0])  # jogged to by hand
-    plan = RigPlan(tip_start=tuple(tip - 6 * v))
-    rows = scan_rig(st, sc, setup, plan, "tip")
+    tip = sim.scene.X_R + frame @ np.array([0.0, -10.0, 20.0]) - 6 * v  # jogged to by hand
+    out_tip = dmdsm("calibrate", "--step", "tip", *ports, "--ranging", str(ranging),
+                    "--data", str(data), "--at", *(f"{c:.3f}" for c in tip), "--json")
+    assert json.loads(out_tip)["step"] == "tip"
     mount(rig_vertical())
     fil = sim.scene.X_R + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * v
-    plan = RigPlan(tip_start=plan.tip_start, edge_start=(fil[0], fil[1], 0.0))
-    rows += scan_rig(st, sc, setup, plan, "edge")
-    raw = {c: np.array([r[c] for r in rows]) for c in COLUMNS}
-    r = solve(center_points(raw, "oa", 0.5, 0.25))
+    res = json.loads(dmdsm("calibrate", "--step", "edge", *ports, "--ranging", str(ranging),
+                           "--data", str(data), "--at", f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0",
+                           "-o", str(out), "--json"))
     n_true = sim.scene.n / np.linalg.norm(sim.scene.n)
-    assert np.degrees(np.arccos(np.clip(r.v @ v, -1, 1))) < 2.0
-    assert np.degrees(np.arccos(np.clip(r.n @ n_true, -1, 1))) < 0.5
-    assert np.linalg.norm(r.X_R[:2] - sim.scene.X_R[:2]) < 0.3
-    st.close()
-    sc.close()
+    assert np.degrees(np.arccos(np.clip(np.dot(res["v"], v), -1, 1))) < 2.0
+    assert np.degrees(np.arccos(np.clip(np.dot(res["n"], n_true), -1, 1))) < 0.5
+    assert np.linalg.norm(np.array(res["X_R"][:2]) - sim.scene.X_R[:2]) < 0.3
+    assert out.read_text().count("X_R") >= 2
+    assert data.read_text().count("\n") > 400  # raw points kept for re-solving

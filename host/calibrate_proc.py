@@ -18,7 +18,7 @@ class RigPlan:
     """Where and how to scan (mm, deg); defaults suit the 0.5 mm filament at ~6 mm."""
 
     tip_start: tuple[float, float, float]   # stage position facing the tip, nearest depth
-    tip_depth_steps: tuple[float, ...] = (0.0, 2.0, 4.0)  # Y steps back (between frames)
+    tip_depth_steps: tuple[float, ...] = (0.0, 3.0, 6.0, 9.0)  # Y steps back (mm)
     tip_half_mm: float = 0.4                # in-frame X-Z raster half width
     tip_step_mm: float = 0.1
     edge_start: tuple[float, float, float] = (0.0, 0.0, 0.0)  # facing the vertical filament
@@ -65,15 +65,12 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
     gate = (gate_for(lo, m, setup.fs_hz, c, 1024)[0], gate_for(hi, m, setup.fs_hz, c, 1024)[1])
     rows: list[dict] = []
     if step == "tip":
-        offs = np.arange(-plan.tip_half_mm, plan.tip_half_mm + 1e-9, plan.tip_step_mm)
-        jobs = [(f, 0, plan.tip_start[0] + ox, plan.tip_start[1] - dy, plan.tip_start[2] + oz,
-                 0.0) for f, dy in enumerate(plan.tip_depth_steps) for oz in offs for ox in offs]
-    else:
-        offs = np.arange(-plan.edge_half_mm, plan.edge_half_mm + 1e-9, plan.edge_step_mm)
-        starts = [edge_start_at(plan, th) for th in plan.edge_angles_deg]
-        jobs = [(f, li, starts[f][0] + ox, starts[f][1], z, th)
-                for f, th in enumerate(plan.edge_angles_deg)
-                for li, z in enumerate(plan.edge_z_levels) for ox in offs]
+        return _scan_tips(stage, sensor, mf, setup, plan, gate, progress)
+    offs = np.arange(-plan.edge_half_mm, plan.edge_half_mm + 1e-9, plan.edge_step_mm)
+    starts = [edge_start_at(plan, th) for th in plan.edge_angles_deg]
+    jobs = [(f, li, starts[f][0] + ox, starts[f][1], z, th)
+            for f, th in enumerate(plan.edge_angles_deg)
+            for li, z in enumerate(plan.edge_z_levels) for ox in offs]
     for i, (frame, line, x, y, z, th) in enumerate(jobs):
         d, amp = _measure(stage, sensor, mf, setup, plan, gate, x, y, z, th)
         rows.append({"step": step, "frame": frame, "line": line, "theta_deg": th,
@@ -81,6 +78,44 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
                      "modality": m})
         if progress is not None:
             progress(i + 1, len(jobs))
+    return rows
+
+
+def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
+               plan: RigPlan, gate: tuple[int, int],
+               progress: Callable[[int, int], None] | None) -> list[dict]:
+    """Tip frames, each raster centred where the tip should be: the tip drifts across the
+    raster by v_x, v_z per mm of depth, so each frame's centre is extrapolated from the
+    centre points of the frames before it."""
+    offs = np.arange(-plan.tip_half_mm, plan.tip_half_mm + 1e-9, plan.tip_step_mm)
+    total = len(plan.tip_depth_steps) * len(offs) ** 2
+    rows: list[dict] = []
+    centers: list[np.ndarray] = []  # (x, z) of each frame's center point
+    x0, y0, z0 = plan.tip_start
+    for f, dy in enumerate(plan.tip_depth_steps):
+        if len(centers) >= 2:
+            step = (centers[-1] - centers[-2]) / (plan.tip_depth_steps[f - 1]
+                                                 - plan.tip_depth_steps[f - 2])
+            cx, cz = centers[-1] + step * (dy - plan.tip_depth_steps[f - 1])
+        elif centers:
+            cx, cz = centers[-1]
+        else:
+            cx, cz = x0, z0
+        frame_rows = []
+        for oz in offs:
+            for ox in offs:
+                d, amp = _measure(stage, sensor, mf, setup, plan, gate, cx + ox, y0 - dy,
+                                  cz + oz, 0.0)
+                frame_rows.append({"step": "tip", "frame": f, "line": 0, "theta_deg": 0.0,
+                                   "sx_mm": cx + ox, "sy_mm": y0 - dy, "sz_mm": cz + oz,
+                                   "d_mm": d, "amplitude": amp, "modality": plan.modality})
+                if progress is not None:
+                    progress(len(rows) + len(frame_rows), total)
+        rows += frame_rows
+        amps = np.array([r["amplitude"] for r in frame_rows])
+        keep = amps >= 0.5 * amps.max() if amps.max() > 0 else np.ones(len(amps), bool)
+        centers.append(np.array([np.mean([r["sx_mm"] for r, k in zip(frame_rows, keep) if k]),
+                                 np.mean([r["sz_mm"] for r, k in zip(frame_rows, keep) if k])]))
     return rows
 
 

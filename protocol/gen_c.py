@@ -100,7 +100,7 @@ struct dmdsm_msg_info {
 const struct dmdsm_msg_info *dmdsm_msg_info(uint8_t type);
 /* true if a payload of this length (and sample_format) fits the message type */
 bool dmdsm_payload_ok(uint8_t type, const uint8_t *payload, size_t len);
-/* writes "field=value ..." (tails as name:len=N:crc=XXXXXXXX); returns chars
+/* writes "field=value ..." (tails as name:len=N:crc=8 hex digits); returns chars
  * that a large enough buffer needs, like snprintf */
 int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
                      char *out, size_t cap);

@@ -138,7 +138,7 @@ def _boards_stage(out: Path, quick: bool) -> tuple[list[str], bool]:
         f"(lost {len(shots.lost)}: device {shots.device_dropped}, link "
         f"{shots.link_rejected}) |",
         f"| strongest late arrival (US echo, raw) | {us_idx / fs:.2f} us; truth "
-        f"{truth['arrival_us_us']:.2f} us (ranging lands with issue #6) |",
+        f"{truth['arrival_us_us']:.2f} us (raw peak; calibrated ranging below) |",
         f"| clock sync | device clock {clock.ticks_per_s / 1e6:.2f} MHz (nominal 240), "
         f"residual {clock.residual_s * 1e6:.0f} us, round trip {clock.rtt_s * 1e3:.1f} ms |",
         f"| file | {out / 'block_shots.h5'} |",

@@ -51,13 +51,13 @@ deps: $(STAMPS)/apt $(VENV)/stamp
 venv: $(VENV)/stamp
 
 ## ---------------------------------------------------------------- build
-$(HOSTBUILD)/test_frame: $(PROTO_C) $(PROTO_H) tests/c/test_frame.c tests/c/vectors.c tests/c/vectors.h | $(STAMPS)/apt
+$(HOSTBUILD)/test_frame: $(PROTO_C) $(PROTO_H) tests/c/test_frame.c tests/c/vectors.c tests/c/vectors.h tests/c/check.h | $(STAMPS)/apt
 	@mkdir -p $(HOSTBUILD)
 	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Itests/c $(PROTO_C) tests/c/test_frame.c tests/c/vectors.c -o $@
 
-$(HOSTBUILD)/test_core: $(PROTO_C) $(PROTO_H) $(CORE_C) $(CORE_H) tests/c/test_core.c | $(STAMPS)/apt
+$(HOSTBUILD)/test_core: $(PROTO_C) $(PROTO_H) $(CORE_C) $(CORE_H) tests/c/test_core.c tests/c/check.h | $(STAMPS)/apt
 	@mkdir -p $(HOSTBUILD)
-	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Ifirmware/stm32/core $(PROTO_C) $(CORE_C) tests/c/test_core.c -o $@
+	gcc $(CFLAGS_HOST) $(SANITIZE) -Iprotocol/c -Ifirmware/stm32/core -Itests/c $(PROTO_C) $(CORE_C) tests/c/test_core.c -o $@
 
 $(HOSTBUILD)/proto_tool: $(PROTO_C) $(PROTO_H) tests/c/proto_tool.c | $(STAMPS)/apt
 	@mkdir -p $(HOSTBUILD)

@@ -6,16 +6,7 @@
 #include "dmdsm_frame.h"
 #include "vectors.h"
 
-static int failures;
-
-#define CHECK(cond)                                                          \
-    do {                                                                     \
-        if (!(cond)) {                                                       \
-            fprintf(stderr, "%s:%d: CHECK(%s) failed\n", __FILE__, __LINE__, \
-                    #cond);                                                  \
-            failures++;                                                      \
-        }                                                                    \
-    } while (0)
+#include "check.h" /* CHECK, failures */
 
 static uint8_t out[DMDSM_WIRE_SIZE(DMDSM_MAX_PAYLOAD)];
 static uint8_t rxbuf[DMDSM_MAX_ENCODED];

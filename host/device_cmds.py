@@ -177,7 +177,6 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
 def cmd_stage(args: argparse.Namespace) -> int:
     """Home, move (checked against the envelope and keep-out first), where, stop."""
-    from .safety import KeepOut, check_move
     from .stage import StageClient
 
     config = load_config(args.config)
@@ -191,7 +190,7 @@ def cmd_stage(args: argparse.Namespace) -> int:
             st.stop()
             pos = st.where()
         else:
-            pos = _move(st, args, config, KeepOut, check_move)
+            pos = _move(st, args, config)
     except KeyboardInterrupt:
         st.stop()  # Ctrl-C during motion: quick-stop, port stays usable
         raise
@@ -201,9 +200,9 @@ def cmd_stage(args: argparse.Namespace) -> int:
     return 0
 
 
-def _move(st: object, args: argparse.Namespace, config: dict, KeepOut: type,  # noqa: N803
-          check_move: object) -> dict:
-    from .safety import TABLE_I
+def _move(st: object, args: argparse.Namespace, config: dict) -> dict:
+    """Check the move against the envelope and the keep-out, then move and wait."""
+    from .safety import TABLE_I, KeepOut, check_move
 
     here = st.where()
     target = dict(here)

@@ -101,7 +101,7 @@ class StageClient:
     def _bytes_in_flight(self) -> int:
         return sum(len(x) for x in self.unacked.values())
 
-    def _read_lines(self, wait_s: float) -> list[str]:
+    def _read_lines(self) -> list[str]:
         try:
             data = self.ser.read(1)  # returns at the first byte, or after the port timeout
             if data:
@@ -172,7 +172,7 @@ class StageClient:
             if now > deadline:
                 raise TimeoutError
             busy_before = self.stats.busy
-            for line in self._read_lines(0.05):
+            for line in self._read_lines():
                 self._handle(line)
             if self.stats.busy != busy_before:
                 deadline = time.monotonic() + self.timeout_s

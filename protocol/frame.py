@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 from cobs import cobs
 
-from .messages import Message, pack_payload, unpack_payload
+from .messages import Message, MessageError, pack_payload, unpack_payload
 from .spec import CRC_SIZE, HEADER, Spec, load_spec
 
 DELIMITER = b"\x00"
@@ -31,7 +31,6 @@ def encode_frame(msg: Message, spec: Spec | None = None) -> bytes:
     spec = spec or load_spec()
     payload = pack_payload(msg)
     if len(payload) > spec.max_payload:
-        from .messages import MessageError
         raise MessageError(f"{msg.name}: payload {len(payload)} B exceeds the "
                            f"{spec.max_payload} B maximum")
     return encode_raw(msg.spec.id, msg.seq, msg.flags, payload, spec.version)

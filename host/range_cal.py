@@ -96,19 +96,33 @@ class RangingSetup:
 
     def save(self, path: Path) -> None:
         """JSON with the templates' samples (readable, diffable)."""
+        Path(path).write_text(self.to_json())
+
+    def to_json(self) -> str:
+        """The setup as JSON text (what save() writes; scan files embed it)."""
         obj = {"format": "dmdsm-ranging", "version": 1, "fs_hz": self.fs_hz,
                "modalities": {m: {"template": self.templates[m].pulse.tolist(),
                                   "center": self.templates[m].center,
                                   "gate": list(self.gates[m]),
                                   "calibration": asdict(self.cals[m])}
                               for m in self.templates}}
-        Path(path).write_text(json.dumps(obj, indent=1))
+        return json.dumps(obj, indent=1)
 
     @classmethod
     def load(cls, path: Path) -> RangingSetup:
         """Read a file written by save(); raises ValueError with what is wrong."""
         try:
-            obj = json.loads(Path(path).read_text())
+            return cls.from_json(Path(path).read_text())
+        except OSError as e:
+            raise ValueError(f"{path}: not a readable ranging calibration ({e})") from None
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
+
+    @classmethod
+    def from_json(cls, text: str) -> RangingSetup:
+        """Parse to_json() text; raises ValueError with what is wrong."""
+        try:
+            obj = json.loads(text)
             if obj.get("format") != "dmdsm-ranging":
                 raise ValueError("not a dmdsm ranging calibration")
             fs = float(obj["fs_hz"])
@@ -117,5 +131,5 @@ class RangingSetup:
                                         float(v["center"])) for m, v in mods.items()},
                        {m: tuple(v["gate"]) for m, v in mods.items()},
                        {m: RangeCal(**v["calibration"]) for m, v in mods.items()})
-        except (OSError, KeyError, TypeError, json.JSONDecodeError) as e:
-            raise ValueError(f"{path}: not a readable ranging calibration ({e})") from None
+        except (KeyError, TypeError, json.JSONDecodeError) as e:
+            raise ValueError(f"not a readable ranging calibration ({e})") from None

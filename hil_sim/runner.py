@@ -40,6 +40,7 @@ class SimConfig:
     X_R: tuple[float, ...] = tuple(TABLE_I_XR)
     faults: str = ""                       # e.g. "sensor.flip=1e-5,stage.lost_ok=0.01"
     objects: list = field(default_factory=list)  # extra SceneObjects (tests)
+    frozen_noise: bool = False             # same pose + config -> same waveforms
 
 
 def _hash_noise(key: str, sigma: float, size: int, seed: int) -> np.ndarray:
@@ -69,7 +70,8 @@ class Simulation:
         self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
                                   rep_rate_hz=cfg.rep_rate_hz,
-                                  link_bytes_per_s=cfg.sensor_link_bytes_per_s)
+                                  link_bytes_per_s=cfg.sensor_link_bytes_per_s,
+                                  frozen_noise=cfg.frozen_noise)
         self.channels = {
             (name, way): FaultyChannel(link[name], seed=cfg.seed * 4 + i)
             for i, (name, way) in enumerate((n, w) for n in ("sensor", "stage")

@@ -9,6 +9,7 @@ the device exactly as on hardware.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 
 import numpy as np
@@ -28,7 +29,8 @@ class SensorBoard:
 
     def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
                  seed: int = 0, rep_rate_hz: float = 1000.0,
-                 link_bytes_per_s: float = 200_000.0, max_samples: int = 8192) -> None:
+                 link_bytes_per_s: float = 200_000.0, max_samples: int = 8192,
+                 frozen_noise: bool = False) -> None:
         self.scene = scene
         self.pose = pose
         self.model = model or SensorModel()
@@ -44,6 +46,10 @@ class SensorBoard:
         self.link_blocked = False  # the host side cannot take more (pty full): back-pressure
         self.shots = 0
         self._hit_cache: tuple[tuple, Hit] | None = None
+        # frozen noise: every arm draws from a generator seeded by (seed, pose, config), so
+        # measuring a pose again gives the same waveforms (exact regression comparisons)
+        self.frozen_noise = frozen_noise
+        self._in_arm = False
 
     def _ticks(self, t: float) -> int:
         return int(round(t * TICK_HZ)) & 0xFFFFFFFF
@@ -67,6 +73,12 @@ class SensorBoard:
         self.core.capture(to_adc(x, self.model), self._ticks(t), phase)
         self.shots += 1
 
+    def _reseed(self, t: float, cfg: dict) -> None:
+        S, theta = self.pose(t)
+        key = f"{self.seed}:{np.round(S, 4).tolist()}:{round(theta, 4)}:{sorted(cfg.items())}"
+        h = hashlib.blake2b(key.encode(), digest_size=8).digest()
+        self.rng = np.random.default_rng(int.from_bytes(h, "little"))
+
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host arrive at time now (s)."""
         self.step_to(now)
@@ -76,12 +88,18 @@ class SensorBoard:
         """Fire every laser shot up to `now` (s)."""
         period = 1.0 / self.rep_rate_hz
         if self.core.armed() is None:  # idle: the laser fires but nothing samples it
+            self._in_arm = False
             self.next_shot = max(self.next_shot, now - now % period + period)
         fired = 0
         while self.next_shot <= now and fired < 100_000:
             cfg = self.core.armed()
             if cfg is not None:
+                if self.frozen_noise and not self._in_arm:
+                    self._reseed(self.next_shot, cfg)
+                self._in_arm = True
                 self._fire(self.next_shot, cfg)
+            else:
+                self._in_arm = False
             self.next_shot += period
             fired += 1
         self.now = max(self.now, now)

@@ -28,14 +28,23 @@ class RangeCal:
     n: int
 
 
-def fit_range(t_s: np.ndarray, d_mm: np.ndarray, modality: str) -> RangeCal:
-    """Least squares of t = t0 + k d / c (k = 1 for OA, 2 for US) over known distances d."""
+def fit_range(t_s: np.ndarray, d_mm: np.ndarray, modality: str,
+              c_mm_s: float | None = None) -> RangeCal:
+    """Least squares of t = t0 + k d / c (k = 1 for OA, 2 for US) over known distances d;
+    with c_mm_s given (from the air temperature) only t0 is fitted (c_std reported as 0)."""
     k = 1.0 if modality == "oa" else 2.0
     t, d = np.asarray(t_s, float), np.asarray(d_mm, float)
     good = np.isfinite(t) & np.isfinite(d)
     t, d = t[good], d[good]
     if len(t) < 3 or np.ptp(d) == 0:
         raise ValueError("need at least three arrivals at different known distances")
+    if c_mm_s is not None:
+        r = t - k * d / c_mm_s
+        t0 = float(r.mean())
+        resid = r - t0
+        s2 = float(resid @ resid) / max(len(t) - 1, 1)
+        return RangeCal(modality, t0, float(c_mm_s), float(np.sqrt(s2 / len(t))), 0.0,
+                        float(np.sqrt(s2) * c_mm_s / k), len(t))
     A = np.column_stack([np.ones_like(d), k * d])
     coef, *_ = np.linalg.lstsq(A, t, rcond=None)
     t0, inv_c = coef

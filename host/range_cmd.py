@@ -27,32 +27,41 @@ def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int
 def calibrate_range(stage: object, sensor: object, start: dict[str, float],
                     start_distance_mm: float, steps: int = 11, step_mm: float = 0.5,
                     shots: int = 10, average: int = 16, temperature_c: float = 20.0,
-                    along_beam: float = 1.0 / TABLE_I["v"][1]) -> tuple[RangingSetup, dict]:
+                    along_beam: float = 1.0 / TABLE_I["v"][1], fit_c: bool = True,
+                    lateral: int = 1, lateral_mm: float = 0.5) -> tuple[RangingSetup, dict]:
     """Step the sensor away from a flat target along Y, record, learn pulses, fit t0 and c.
 
     start_distance_mm is the known beam distance at `start` (a gauge block or feeler);
     each Y step of s mm lengthens the beam path by s * along_beam (1 / v_y for a face
-    normal to Y; the paper's v by default)."""
+    normal to Y; the paper's v by default). fit_c=False keeps c from the air temperature
+    and fits t0 alone: better when the travel is short (c from 20 mm of travel is good to
+    ~0.5 %, from a thermometer reading within 1 degC to 0.2 %). lateral > 1 also records
+    that many X positions lateral_mm apart at each depth (same distance on a face normal to
+    Y): the surface under the spot changes, so its roughness averages out of t0."""
     c0 = speed_of_sound_mm_s(temperature_c)
     fs = sensor.identity.adc_rate_hz
     n = sensor.configure(n_samples=1024, n_average=average, pretrigger=0,
                          trigger_timeout_ms=2000)["n_samples"]
-    waves, phases, dists = [], [], []
+    waves, phases, dists, lats = [], [], [], []
     for i in range(steps):
-        stage.move(x=start["X"], y=start["Y"] - i * step_mm, z=start["Z"], wait=True)
-        stage.wait()
-        got = sensor.acquire(shots)
-        ok = got.received
-        waves.append(got.samples[ok].astype(float) - 32768.0)
-        phases.append(got.trigger_phase[ok] / sensor.identity.tick_hz)
-        dists.append(np.full(ok.sum(), start_distance_mm + i * step_mm * along_beam))
+        for j in range(lateral):
+            stage.move(x=start["X"] + j * lateral_mm, y=start["Y"] - i * step_mm,
+                       z=start["Z"], wait=True)
+            stage.wait()
+            got = sensor.acquire(shots)
+            ok = got.received
+            waves.append(got.samples[ok].astype(float) - 32768.0)
+            phases.append(got.trigger_phase[ok] / sensor.identity.tick_hz)
+            dists.append(np.full(ok.sum(), start_distance_mm + i * step_mm * along_beam))
+            lats.append(np.full(ok.sum(), j))
     x, ph, d = np.vstack(waves), np.concatenate(phases), np.concatenate(dists)
+    lat = np.concatenate(lats)
     templates, gates, cals, report = {}, {}, {}, {}
     for m in MODALITIES:
         g = [gate_for(di, m, fs, c0, n) for di in d]
         lo, hi = min(a for a, _ in g), max(b for _, b in g)
         try:
-            tmpl = learn_template(x[d == d[0]], fs, g[0])
+            tmpl = learn_template(x[(d == d[0]) & (lat == 0)], fs, g[0])
         except ValueError:
             report[m] = "no echo (this target gives none in this modality)"
             continue
@@ -65,9 +74,8 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
         # one point per position: shots at one position share its surface scatter, so
         # fitting them separately would overstate the precision
         pos = np.unique(d)
-        t_pos = np.array([np.nanmedian(t[d == di]) if np.isfinite(t[d == di]).any()
-                          else np.nan for di in pos])
-        cal = fit_range(t_pos, pos, m)
+        t_pos = np.array([_depth_time(t, d == di, lat, lateral) for di in pos])
+        cal = fit_range(t_pos, pos, m, None if fit_c else c0)
         templates[m], gates[m], cals[m] = tmpl, (lo, hi), cal
         report[m] = (f"t0 {cal.t0_s * 1e6:.4f} +/- {cal.t0_std_s * 1e6:.4f} us, "
                      f"c {cal.c_mm_s / 1e3:.2f} +/- {cal.c_std_mm_s / 1e3:.2f} m/s "
@@ -76,6 +84,14 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
     if not cals:
         raise ValueError("no echoes in either modality: is the target in front of the beam?")
     return RangingSetup(fs, templates, gates, cals), report
+
+
+def _depth_time(t: np.ndarray, sel: np.ndarray, lat: np.ndarray, lateral: int) -> float:
+    """Arrival time (s) at one depth: the mean over lateral positions of each one's median
+    over its shots (NaN if no shot there has an arrival)."""
+    meds = [np.nanmedian(t[sel & (lat == j)]) for j in range(lateral)
+            if np.isfinite(t[sel & (lat == j)]).any()]
+    return float(np.mean(meds)) if meds else np.nan
 
 
 def range_waveforms(x: np.ndarray, phase_s: np.ndarray, setup: RangingSetup, modality: str,
@@ -104,6 +120,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--shots", type=int, default=10)
     p.add_argument("--average", type=int, default=16)
     p.add_argument("--temperature", type=float, default=20.0, help="air temperature (degC)")
+    p.add_argument("--lateral", type=int, default=1,
+                   help="X positions per depth (0.5 mm apart) to average surface roughness")
+    p.add_argument("--fixed-c", action="store_true",
+                   help="take c from --temperature and fit t0 only (short travel)")
     p.add_argument("-o", "--output", type=Path, default=Path("ranging.json"))
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_calibrate_range)
@@ -130,7 +150,8 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
         with StageClient(resolve_port("stage", args.stage, cfg)) as st:
             setup, report = calibrate_range(
                 st, sc, {"X": args.x, "Y": args.y, "Z": args.z}, args.start_distance,
-                args.steps, args.step, args.shots, args.average, args.temperature)
+                args.steps, args.step, args.shots, args.average, args.temperature,
+                fit_c=not args.fixed_c, lateral=args.lateral)
     except ValueError as e:
         raise CliError(str(e)) from None
     finally:

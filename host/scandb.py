@@ -32,7 +32,8 @@ POINT_FIELDS: dict[str, tuple[str, tuple[int, ...]]] = {
     "column": ("i4", ()),                # index of the in-frame raster position
     "angle_index": ("i4", ()),           # index of the turntable angle in the plan
     "received": ("b1", ()),              # False: the waveform was lost (zeros stored)
-    "shot_id": ("u4", ()),
+    "attempts": ("u1", ()),              # arms it took (a lost waveform is re-armed)
+    "n_average": ("u2", ()),             # laser shots averaged on board
     "timestamp": ("u8", ()),             # device ticks of the first averaged laser edge
     "trigger_phase": ("u2", ()),         # device ticks from laser edge to first sample
     "distance_oa_mm": ("f8", ()),        # NaN: no OA arrival

@@ -42,6 +42,11 @@ class Shots:
     device_dropped: int = 0     # shots the device dropped (its counter, during this run)
     adc_overruns: int = 0
     link_rejected: int = 0      # frames the host decoder rejected during this run
+    # host monotonic times (s): arm acknowledged, first byte after it, last shot decoded;
+    # armed -> first byte is the laser and capture time, first byte -> done the transfer
+    armed_s: float | None = None
+    first_byte_s: float | None = None
+    done_s: float | None = None
 
     @property
     def lost(self) -> np.ndarray:
@@ -134,6 +139,9 @@ class SensorClient:
                 return
             if not data:
                 continue
+            s = self.shots
+            if s is not None and s.armed_s is not None and s.first_byte_s is None:
+                s.first_byte_s = time.monotonic()
             for m in self.decoder.feed(data):
                 self._route(m)
 
@@ -251,7 +259,9 @@ class SensorClient:
         self.shots = shots
         try:
             self._expect_ack(self.request("arm", n_shots=n_shots), "arm")
+            shots.armed_s = time.monotonic()
             self._collect(shots, n_shots, cfg, timeout_s, progress)
+            shots.done_s = time.monotonic()
         finally:
             self.shots = None
         after = self.status()

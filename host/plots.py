@@ -1,0 +1,56 @@
+"""Figures like the paper's: contours per level with OA squares and US crosses (Figs. 3-4)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .reconstruct import contour_order
+
+STYLE = {"oa": ("s", "tab:red", "OA"), "us": ("x", "tab:blue", "US")}
+
+
+def _outline(size_xy: tuple[float, float], pose: dict) -> np.ndarray:
+    w, h = np.asarray(size_xy) / 2
+    c = np.array([[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]])
+    a = np.radians(pose["yaw_deg"])
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return c @ R.T + [pose["x_mm"], pose["y_mm"]]
+
+
+def contour_figure(pts: dict, path: Path, size_xy: tuple[float, float] | None = None,
+                   fits: dict | None = None, title: str = "") -> None:
+    """PNG of object-frame points (cm, like the paper), one panel per level; fitted block
+    outlines per modality when given, else lines between adjacent points."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    levels = sorted(set(np.concatenate([pts[m]["level"] for m in STYLE]).tolist())) or [0]
+    fig, axes = plt.subplots(1, len(levels), figsize=(4.2 * len(levels), 4.2), squeeze=False)
+    for ax, lvl in zip(axes[0], levels):
+        for m, (marker, color, label) in STYLE.items():
+            sel = pts[m]["level"] == lvl
+            P = pts[m]["P"][sel] / 10.0
+            if not len(P):
+                continue
+            ax.scatter(P[:, 0], P[:, 1], marker=marker, s=14, color=color, label=label,
+                       facecolors="none" if marker == "s" else None, linewidths=0.8)
+            if fits and m in fits and size_xy:
+                o = _outline(size_xy, fits[m]["pose"]) / 10.0
+                ax.plot(o[:, 0], o[:, 1], color=color, lw=1.0,
+                        label=f"{label} fit, e={fits[m]['e_mean_mm']:.3f} mm")
+            else:
+                order = contour_order(P)
+                ax.plot(P[order, 0], P[order, 1], color=color, lw=0.6)
+        z = np.concatenate([pts[m]["P"][pts[m]["level"] == lvl][:, 2] for m in STYLE])
+        ax.set_title(f"{title} level {lvl}" + (f" (z {np.median(z):.0f} mm)" if len(z) else ""))
+        ax.set_xlabel("x (cm)")
+        ax.set_ylabel("y (cm)")
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

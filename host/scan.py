@@ -23,6 +23,7 @@ from .scandb import PHASES, ScanWriter
 
 RETRIES = 3  # arms per point before a waveform is recorded as lost
 CONTINUITY_MM = 3.0  # a lone pulse continues the previous point's surface within this
+CONTINUITY_DB = 10.0  # ... and at most this much weaker than it
 
 
 @dataclass
@@ -52,8 +53,10 @@ class PointRanger:
     lone pulse is read as the plan's modality ("both": OA, which survives oblique incidence
     where the specular US echo does not)."""
     # A lone pulse in a "both" plan is read as whichever modality puts it within
-    # CONTINUITY_MM of the previous point of the same line (surfaces are continuous);
-    # with no such neighbour it is ambiguous and both distances are NaN.
+    # CONTINUITY_MM of the previous point of the same line (surfaces are continuous) at an
+    # SNR no more than CONTINUITY_DB below that point's in the same modality (a much
+    # weaker pulse is something else: e.g. OA from a grazing side face far behind); with
+    # no such neighbour it is ambiguous and both distances are NaN.
 
     def __init__(self, setup: RangingSetup, plan: ScanPlan, n_samples: int,
                  tick_hz: float, pair_mm: float = 2.0) -> None:
@@ -88,9 +91,10 @@ class PointRanger:
         return float(cal.c_mm_s * (t - cal.t0_s) / K[m]), float(arr.snr_db[0])
 
     def __call__(self, waveform: np.ndarray, phase_ticks: int, pretrigger: int = 0,
-                 previous_mm: float | None = None) -> dict[str, tuple[float, float]]:
-        """modality -> (distance mm or NaN, SNR dB); previous_mm: the surface distance of
-        the previous point on the same scan line, if any."""
+                 previous: tuple[float, dict[str, float]] | None = None
+                 ) -> dict[str, tuple[float, float]]:
+        """modality -> (distance mm or NaN, SNR dB); previous: (surface distance mm,
+        {modality: SNR dB}) of the previous point on the same scan line, if any."""
         x = waveform.astype(np.float32)[None, :] - 32768.0
         ph = phase_ticks / self.tick_hz
         mods = [m for m in ("oa", "us") if m in self.filters]
@@ -119,8 +123,9 @@ class PointRanger:
                     "us": us if self.plan_modality != "oa" else (np.nan, us[1])}
         if self.plan_modality != "both":
             lone = self.plan_modality
-        elif previous_mm is not None and np.isfinite(previous_mm):
-            near = [m for m in mods if abs(wide[m][0] - previous_mm) < CONTINUITY_MM]
+        elif previous is not None and np.isfinite(previous[0]):
+            near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
+                    and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]
             lone = near[0] if len(near) == 1 else None
         else:
             lone = None
@@ -173,8 +178,7 @@ def run_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Point],
                                                                          p.level) else None
             r = ranger(wave, int(got.trigger_phase[0]), int(got.config.get("pretrigger", 0)),
                        prev[1] if prev else None)
-            d_now = [r[m][0] for m in ("oa", "us") if m in r and np.isfinite(r[m][0])]
-            previous = ((p.angle_index, p.level), d_now[0] if d_now else np.nan)
+            previous = ((p.angle_index, p.level), _surface(r))
             ids = dict(n_average=int(got.n_average[0]), timestamp=int(got.timestamp[0]),
                        trigger_phase=int(got.trigger_phase[0]), received=True)
         else:
@@ -207,6 +211,13 @@ def _last_distance(writer: ScanWriter, points: list[Point]) -> tuple | None:
     if i < 0:
         return None
     d = writer.data
-    vals = [float(d[f"distance_{m}_mm"][i]) for m in ("oa", "us")]
-    finite = [x for x in vals if np.isfinite(x)]
-    return ((points[i].angle_index, points[i].level), finite[0] if finite else np.nan)
+    r = {m: (float(d[f"distance_{m}_mm"][i]), float(d[f"snr_{m}_db"][i]))
+         for m in ("oa", "us")}
+    return ((points[i].angle_index, points[i].level), _surface(r))
+
+
+def _surface(r: dict[str, tuple[float, float]]) -> tuple[float, dict[str, float]]:
+    """(surface distance mm, {modality: SNR dB} of the modalities that found it)."""
+    found = {m: v for m, v in r.items() if np.isfinite(v[0])}
+    d = next(iter(found.values()))[0] if found else np.nan
+    return d, {m: v[1] for m, v in found.items()}

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import os
 import select
+import sys
 import threading
 import time
 import tty
 from pathlib import Path
 
+from .objects import SCENES
 from .runner import Simulation
 
 MAX_PENDING = 1 << 20  # bytes kept for a host that does not read; older output is dropped
@@ -63,6 +65,40 @@ class PtyServer:
         self.ports = {name: Port(name, d) for name in ("sensor", "stage")}
         self._stop = threading.Event()
         self.lock = threading.Lock()  # held while the simulation steps (truth() readers)
+        # what a user does by hand on the real machine: `echo rig_vertical > DIR/scene`
+        self.scene_file = d / "scene" if d else None
+        self._scene_mtime = 0.0
+        self._scene_check = 0.0
+        if self.scene_file is not None:  # the file names what is mounted now
+            self.scene_file.write_text(sim.cfg.scene + "\n")
+            self._scene_mtime = self.scene_file.stat().st_mtime
+
+    def mount(self, objects: list) -> None:
+        """Put other objects on the turntable (the user re-mounting the rig or an object)."""
+        with self.lock:
+            self.sim.scene.objects = list(objects)
+            self.sim.sensor._hit_cache = None
+
+    def _watch_scene(self) -> None:
+        """Mount the scene named in DIR/scene when the file changes (checked every 0.2 s)."""
+        now = time.monotonic()
+        if self.scene_file is None or now - self._scene_check < 0.2:
+            return
+        self._scene_check = now
+        try:
+            mtime = self.scene_file.stat().st_mtime
+        except OSError:
+            return
+        if mtime == self._scene_mtime:
+            return
+        self._scene_mtime = mtime
+        name = self.scene_file.read_text().strip()
+        if name not in SCENES:
+            print(f"dmdsm sim: unknown scene {name!r} in {self.scene_file}; known: "
+                  f"{', '.join(SCENES)}", file=sys.stderr)
+            return
+        self.mount(SCENES[name]())
+        print(f"dmdsm sim: mounted {name}", file=sys.stderr)
 
     def stop(self) -> None:
         """Ask serve_forever to return."""
@@ -72,6 +108,7 @@ class PtyServer:
         """Pump bytes between the ptys and the simulation in (scaled) real time."""
         wall0, sim0 = time.monotonic(), self.sim.t
         while not self._stop.is_set():
+            self._watch_scene()
             fds = [p.master for p in self.ports.values() if p.master >= 0]
             readable, _, _ = select.select(fds, [], [], 0.001)
             with self.lock:

@@ -133,6 +133,8 @@ def append_rows(path: Path, rows: list[dict]) -> None:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `calibrate`."""
+    from .calibrate_proc import RigPlan
+
     p = sub.add_parser("calibrate", help="scan the rig and solve v, n, X_R (paper §IV)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--from-data", type=Path, help="solve from a calibration CSV")
@@ -151,6 +153,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 180.0],
                    help="turntable angles of the edge frames (deg)")
     p.add_argument("--modality", choices=["oa", "us"], default="oa")
+    d = RigPlan.__dataclass_fields__
+    p.add_argument("--tip-depths", type=float, nargs="+", metavar="MM",
+                   default=list(d["tip_depth_steps"].default),
+                   help="Y steps back from --at for the tip frames (mm)")
+    p.add_argument("--tip-half", type=float, default=d["tip_half_mm"].default,
+                   help="half width of the tip frames' X-Z raster (mm)")
+    p.add_argument("--tip-step", type=float, default=d["tip_step_mm"].default,
+                   help="raster step (mm)")
+    p.add_argument("--edge-levels", type=float, nargs="+", metavar="MM",
+                   default=list(d["edge_z_levels"].default),
+                   help="Z levels of the edge sweeps (mm)")
+    p.add_argument("--edge-half", type=float, default=d["edge_half_mm"].default,
+                   help="half width of the X sweeps across the filament (mm)")
+    p.add_argument("--edge-step", type=float, default=d["edge_step_mm"].default,
+                   help="sweep step (mm)")
+    p.add_argument("--average", type=int, default=d["average"].default,
+                   help="laser shots averaged on the board per raw point")
     p.add_argument("--threshold", type=float, default=0.5,
                    help="keep raw points above this fraction of the frame's max amplitude")
     p.add_argument("--radius", type=float, default=0.25, help="filament radius (mm)")
@@ -178,7 +197,11 @@ def _scan(args: argparse.Namespace) -> None:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
     x, y, z = args.at
     plan = RigPlan(tip_start=(x, y, z), edge_start=(x, y, 0.0),
-                   edge_angles_deg=tuple(args.angles), modality=args.modality)
+                   edge_angles_deg=tuple(args.angles), modality=args.modality,
+                   tip_depth_steps=tuple(args.tip_depths), tip_half_mm=args.tip_half,
+                   tip_step_mm=args.tip_step, edge_z_levels=tuple(args.edge_levels),
+                   edge_half_mm=args.edge_half, edge_step_mm=args.edge_step,
+                   average=args.average)
     cfg = load_config(args.config)
     sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
     try:

@@ -1,235 +1,291 @@
-"""`dmdsm demo`: runs what exists of the main job end to end and writes out/report.md.
+"""`dmdsm demo`: the paper's experiments end to end on the emulator, through the same `dmdsm`
+commands and serial paths a user with hardware runs, into out/report.html.
 
-Stages so far: (1) the protocol: a sensor-board session is framed, damaged on purpose and
-decoded with every frame accounted for; (2) the boards: the emulator starts on two
-pseudo-terminals, the stage client homes and moves the sensor in front of the aluminium
-block, and the sensor client records shots into HDF5 through the real serial paths.
-Calibration, scanning and classification are added here as they land.
+Stages: (1) ranging calibration on the block (t0, c), (2) the rig calibration of §IV-D
+(Table I with uncertainties next to the emulator's truth), (3) the aluminium block
+validation scan of §V-A2, (4) a household set scanned into a database, (5) material
+classification. Where a user re-mounts the rig or an object by hand, the demo writes the
+scene's name into the emulator's `scene` file (`dmdsm sim --link-dir DIR` watches it).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import json
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
-from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
+from .demo_report import Section, html_page, markdown
+
+PAPER_E = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
+US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
 
 
-def _session(n_shots: int, n_samples: int, rng: np.random.Generator) -> list[Message]:
-    """The frames a sensor board sends during one arm of n_shots waveforms."""
-    spec = load_spec()
-    t = np.arange(n_samples)
-    msgs = [Message("identify_reply", seq=1, flags=1, protocol_version=spec.version,
-                    fw_major=0, fw_minor=1, fw_patch=0, spec_hash=spec.hash,
-                    tick_hz=240_000_000, adc_rate_hz=3_600_000, max_samples=8192,
-                    max_payload=spec.max_payload, board="demo"),
-            Message("ack", seq=2, flags=1, command=0x04),
-            Message("ack", seq=3, flags=1, command=0x05)]
-    for shot in range(n_shots):
-        delay = 400 + 5 * np.sin(shot / 10)  # samples: an echo moving with the stage
-        pulse = 900 * np.exp(-((t - delay) / 6.0) ** 2) * np.sin(2 * np.pi * (t - delay) / 8)
-        wave = np.clip(2048 + pulse + rng.normal(0, 12, n_samples), 0, 4095).astype("<u2")
-        msgs.append(Message("waveform", seq=shot, shot_id=shot, timestamp=shot * 2_400_000,
-                            trigger_phase=int(rng.integers(0, 67)), n_average=1,
-                            pretrigger=32, sample_rate_div=1, sample_format=0, modality=0,
-                            shots_dropped=0, adc_overruns=0, samples=wave))
-    return msgs
+class Demo:
+    """The emulator on ptys plus a way to run `dmdsm` commands and collect their output."""
+
+    def __init__(self, out: Path, quick: bool, speed: float) -> None:
+        from dmdsm.sim.pty_server import PtyServer
+        from dmdsm.sim.runner import SimConfig, Simulation
+
+        self.out, self.quick = out, quick
+        self.sim = Simulation(SimConfig(scene="aluminium_block", seed=7))
+        self.server = PtyServer(self.sim, speed=speed, link_dir=str(out / "ports"))
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+        self.ports = ["--sensor", str(out / "ports" / "sensor"),
+                      "--stage", str(out / "ports" / "stage")]
+
+    def run(self, *args: str) -> str:
+        """`dmdsm ARGS` in this process; returns its stdout; raises on a non-zero exit."""
+        from .cli import main
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rc = main(list(args))
+        if rc != 0:
+            raise RuntimeError(f"dmdsm {' '.join(args[:2])} exited with {rc}")
+        return buf.getvalue()
+
+    def mount(self, scene: str) -> None:
+        """The user puts another object on the turntable."""
+        (self.out / "ports" / "scene").write_text(scene + "\n")
+        time.sleep(0.5)  # the emulator checks the file every 0.2 s
+
+    def close(self) -> None:
+        """Stop the emulator."""
+        self.server.stop()
+        self.thread.join(5)
 
 
-def run_demo(out_dir: str, quick: bool = False) -> int:
-    """Run the demo, print a summary and write the report; returns an exit code."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(1)
-    n_shots = 200 if quick else 2000
-    msgs = _session(n_shots, 4096, rng)
-    frames = [encode_frame(m) for m in msgs]
-    stream = bytearray(b"".join(frames))
-    # inject one flipped byte into every 50th waveform frame
-    pos, damaged = 0, 0
-    for i, f in enumerate(frames):
-        if i >= 3 and i % 50 == 0:
-            stream[pos + len(f) // 2] ^= 0x5A
-            damaged += 1
-        pos += len(f)
-    (out / "demo_capture.bin").write_bytes(stream)
-    dec = FrameDecoder()
-    t0 = time.perf_counter()
-    got = []
-    for i in range(0, len(stream), 65536):
-        got += dec.feed(stream[i:i + 65536])
-    dt = time.perf_counter() - t0
-    shots = [m.shot_id for m in got if m.name == "waveform"]
-    lost = sorted(set(range(n_shots)) - set(shots))
-    wave = frames[3]
-    samples_bytes = msgs[3].samples.nbytes
-    lines = [
-        "# dmdsm demo report",
-        "",
-        "Stage: protocol (sensor-board session framed, corrupted, decoded).",
-        "",
-        "| figure | value |",
-        "|---|---|",
-        f"| frames sent | {len(frames)} |",
-        f"| frames damaged on purpose | {damaged} |",
-        f"| messages decoded | {dec.stats.frames} |",
-        f"| CRC errors / malformed | {dec.stats.crc_errors} / {dec.stats.malformed} |",
-        f"| shots reported lost | {len(lost)} (ids {lost[:5]}{' ...' if len(lost) > 5 else ''}) |",
-        f"| decode throughput | {len(stream) / dt / 1e6:.0f} MB/s |",
-        f"| link efficiency, 4096-sample waveform | {samples_bytes / len(wave):.2%} samples/wire |",
-        f"| capture | {out / 'demo_capture.bin'} (`dmdsm protocol decode` reads it) |",
-    ]
-    ok = len(lost) == damaged and dec.stats.frames == len(frames) - damaged
-    boards, boards_ok = _boards_stage(out, quick)
-    cal, cal_ok = _calibration_stage(out, quick)
-    report = "\n".join(lines + [""] + boards + [""] + cal) + "\n"
-    (out / "report.md").write_text(report)
-    print(report)
-    return 0 if ok and boards_ok and cal_ok else 1
+def _truth(sim: object) -> dict[str, np.ndarray]:
+    s = sim.scene
+    return {"v": s.v / np.linalg.norm(s.v), "n": s.n / np.linalg.norm(s.n), "X_R": s.X_R}
 
 
-def _boards_stage(out: Path, quick: bool) -> tuple[list[str], bool]:
-    """Emulator on ptys; stage + sensor clients over the real serial paths."""
-    import threading
-
-    from dmdsm.sim.pty_server import PtyServer  # the demo may start the emulator
-    from dmdsm.sim.runner import SimConfig, Simulation
-
-    from .device_cmds import write_shots
-    from .sensor import SensorClient
-    from .stage import StageClient
-
-    sim = Simulation(SimConfig(scene="aluminium_block", seed=1))
-    server = PtyServer(sim, speed=1.0)  # real time, so the clock sync means something
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    n_shots = 20 if quick else 100
-    t0 = time.perf_counter()
-    try:
-        with StageClient(server.ports["stage"].name_for_host) as st:
-            st.home()
-            st.move(x=235, y=262, z=20, feed_mm_min=6000, wait=True)
-            st.wait()
-            pos = st.where()
-        sc = SensorClient(server.ports["sensor"].name_for_host)
-        sc.configure(n_samples=1024, n_average=16, trigger_timeout_ms=2000)
-        shots = sc.acquire(n_shots)
-        write_shots(out / "block_shots.h5", shots, dict(sc.identity.fields), sc.port_name)
-        clock = sc.sync_clock(8)
-        sc.close()
-    finally:
-        server.stop()
-        thread.join(5)
-    truth = sim.truth()
-    got = shots.samples[shots.received].astype(float) - 32768
-    fs = sc.identity.adc_rate_hz / 1e6
-    us_idx = int(np.abs(got.mean(axis=0))[int(20 * fs):].argmax()) + int(20 * fs)
-    lines = [
-        "Stage: boards (emulator on two pseudo-terminals, real serial clients)",
-        "",
-        "| figure | value |",
-        "|---|---|",
-        f"| stage after homing and moving | X{pos['X']:.1f} Y{pos['Y']:.1f} Z{pos['Z']:.1f} |",
-        f"| target under the beam (emulator truth) | {truth['object']}, "
-        f"{truth['distance_mm']:.3f} mm |",
-        f"| shots recorded | {int(shots.received.sum())} of {n_shots} "
-        f"(lost {len(shots.lost)}: device {shots.device_dropped}, link "
-        f"{shots.link_rejected}) |",
-        f"| strongest late arrival (US echo, raw) | {us_idx / fs:.2f} us; truth "
-        f"{truth['arrival_us_us']:.2f} us (raw peak; calibrated ranging below) |",
-        f"| clock sync | device clock {clock.ticks_per_s / 1e6:.2f} MHz (nominal 240), "
-        f"residual {clock.residual_s * 1e6:.0f} us, round trip {clock.rtt_s * 1e3:.1f} ms |",
-        f"| file | {out / 'block_shots.h5'} |",
-        f"| wall time | {time.perf_counter() - t0:.1f} s |",
-    ]
-    ok = shots.received.sum() > 0 and abs(us_idx / fs - truth["arrival_us_us"]) < 2.0
-    return lines, bool(ok)
+def stage_ranging(d: Demo) -> Section:
+    """Step the sensor away from the block's face: t0 per modality (c from 20 degC air)."""
+    sec = Section("1. Ranging calibration (t0, c per modality; the stage as a ruler)")
+    d.run("stage", "home", *d.ports[2:])
+    d.run("stage", "move", "-x", "235", "-y", "266", "-z", "20", *d.ports[2:])
+    start = d.sim.truth()["distance_mm"]  # a gauge block would give this on the machine
+    rep = json.loads(d.run("calibrate-range", *d.ports, "-x", "235", "-y", "266", "-z", "20",
+                           "--start-distance", f"{start:.4f}", "--steps",
+                           "8" if d.quick else "21", "--step", "1", "--shots", "2",
+                           "--lateral", "3" if d.quick else "5", "--fixed-c",
+                           "-o", str(d.out / "ranging.json"), "--json"))
+    t = d.sim.truth()
+    sec.table(["modality", "result", "emulator truth"],
+              [["OA", rep["oa"], f"t0 {t['t0_oa_us']:.4f} us, c {t['c_mm_per_us'] * 1e3:.2f} m/s"],
+               ["US", rep["us"], f"t0 {t['t0_us_us']:.4f} us"]])
+    return sec
 
 
-def _calibration_stage(out: Path, quick: bool) -> tuple[list[str], bool]:
-    """Ranging calibration on the block, then the rig (§IV-D) solved into Table I; the
-    emulator's scene is switched where a user re-mounts the rig by hand."""
-    import threading
-
-    from dmdsm.sim.objects import rig_horizontal, rig_vertical
-    from dmdsm.sim.pty_server import PtyServer
-    from dmdsm.sim.runner import SimConfig, Simulation
+def stage_rig(d: Demo) -> tuple[Section, dict]:
+    """Tip frames, edge frames, solved into Table I."""
     from dmdsm.sim.scene import table_frame
 
-    from .calibrate_proc import RigPlan, scan_rig
-    from .calibration import solve
-    from .calibration_io import COLUMNS, append_rows, center_points, write_result
-    from .range_cmd import calibrate_range
-    from .sensor import SensorClient
-    from .stage import StageClient
+    from .calibration_io import read_raw
+    from .plots import rig_figure
 
-    sim = Simulation(SimConfig(scene="aluminium_block", seed=3))
-    server = PtyServer(sim, speed=5.0)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    t0 = time.perf_counter()
+    sec = Section("2. Scanner calibration with the rig (paper §IV-D, Table I)")
+    tr = _truth(d.sim)
+    frame = table_frame(tr["n"])
+    data, cal = d.out / "rig.csv", d.out / "calibration.toml"
+    data.unlink(missing_ok=True)
+    q = ["--tip-depths", "0", "4", "8", "--tip-step", "0.2", "--edge-levels", "10", "25",
+         "40", "--edge-step", "0.15"] if d.quick else []
+    d.mount("rig_horizontal")
+    tip = tr["X_R"] + frame @ np.array([0.0, -10.0, 20.0]) - 6 * tr["v"]
+    d.run("calibrate", "--step", "tip", *d.ports, "--ranging", str(d.out / "ranging.json"),
+          "--data", str(data), "--at", *(f"{c:.3f}" for c in tip), "--json", *q)
+    d.mount("rig_vertical")
+    fil = tr["X_R"] + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * tr["v"]
+    r = json.loads(d.run("calibrate", "--step", "edge", *d.ports, "--ranging",
+                         str(d.out / "ranging.json"), "--data", str(data), "--at",
+                         f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0", "-o", str(cal), "--json", *q))
+    rows = []
+    for k in ("v", "n", "X_R"):
+        est, sd, true = np.array(r[k]), np.array(r["std"][k]), tr[k]
+        rows.append([k + (" (mm)" if k == "X_R" else ""),
+                     "; ".join(f"{a:.4f} ± {b:.4f}" for a, b in zip(est, sd)),
+                     "; ".join(f"{a:.4f}" for a in true),
+                     "; ".join(f"{(a - b) / s:+.1f}" if s > 0 else "-"
+                               for a, b, s in zip(est, true, sd))])
+    sec.table(["parameter", "estimate ± std", "emulator truth (Table I)", "error / std"], rows)
+    ang = {k: float(np.degrees(np.arccos(np.clip(np.dot(r[k], tr[k]), -1, 1))))
+           for k in ("v", "n")}
+    dxr = float(np.linalg.norm(np.array(r["X_R"][:2]) - tr["X_R"][:2]))
+    sec.text.append(f"Errors: v {ang['v']:.3f} deg, n {ang['n']:.3f} deg, X_R {dxr:.3f} mm "
+                    f"(in the table plane); rms residual {r['rms_residual_mm'] * 1e3:.1f} um; "
+                    f"raw points in {data.name}, result in {cal.name}.")
+    sec.ok = ang["v"] < 2.0 and ang["n"] < 0.5 and dxr < 0.3
+    rig_figure(read_raw(data), d.out / "fig2_rig.png")
+    sec.figures.append((d.out / "fig2_rig.png", "Response amplitude over the tip frames' "
+                        "rasters and the edge frames' sweeps (like the paper's Fig. 2)"))
+    return sec, r
 
-    def mount(objects: list) -> None:
-        with server.lock:
-            sim.scene.objects = objects
-            sim.sensor._hit_cache = None
 
+def stage_block(d: Demo) -> Section:
+    """The block validation scan, reconstructed with the calibration just made."""
+    from .db_cmd import scan_points, validate_block
+    from .scandb import read_scan
+
+    sec = Section("3. Aluminium block validation (paper §V-A2, Fig. 3)")
+    d.mount("aluminium_block")
+    plan = d.out / "plans" / "aluminium_block.toml"
+    plan.parent.mkdir(exist_ok=True)
+    plan.write_text(_plan("aluminium_block", "aluminium", 30.0, 40.0,
+                          "[20.0]" if d.quick else "[12.0, 24.0]",
+                          "[0.0, 90.0, 180.0, 270.0]", 32.0, 4.0 if d.quick else 2.0, "both"))
+    s = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
+                         str(d.out / "calibration.toml"), "--ranging",
+                         str(d.out / "ranging.json"), "--plan", str(plan), "-o",
+                         str(d.out / "validation"), "--json").splitlines()[-1])
+    truth = d.out / "block.toml"
+    truth.write_text('shape = "box"\nsize_mm = [50.0, 30.0, 40.0]\n')
+    rec = json.loads(d.run("reconstruct", s["file"], "--truth", str(truth), "--plot",
+                           str(d.out / "fig3_block.png"), "--ply",
+                           str(d.out / "block.ply"), "--json"))
+    scan = read_scan(Path(s["file"]), waveforms=False)
+    scan.calibration.update(_truth(d.sim))
+    ideal = validate_block(scan_points(scan), (50.0, 30.0))
+    rows = []
+    for m, (pm, ps) in PAPER_E.items():
+        f, g = rec["validation"][m], ideal[m]
+        rows.append([m.upper(), f"{f['e_mean_mm']:.3f} ± {f['e_std_mm']:.3f}",
+                     f"{g['e_mean_mm']:.3f} ± {g['e_std_mm']:.3f}", f"{pm:.2f} ± {ps:.2f}",
+                     f["n"]])
+        sec.ok &= g["e_mean_mm"] <= pm + 3 * g["e_std_mm"] / np.sqrt(g["n"])
+    sec.table(["modality", "e (mm), calibration from stage 2",
+               "e (mm), emulator's true v, n, X_R", "paper", "points"], rows)
+    sec.text.append(f"{s['points']} points at {s['points_per_s']} points/s; per point (ms): "
+                    + ", ".join(f"{k} {v}" for k, v in s["ms_per_point"].items()))
+    sec.figures.append((d.out / "fig3_block.png", "Reconstructed block contour: OA squares, "
+                        "US crosses, fitted outlines (like the paper's Fig. 3)"))
+    return sec
+
+
+def _plan(obj: str, material: str, radius: float, height: float, levels: str, angles: str,
+          half: float, step: float, modality: str) -> str:
+    return (f'[sample]\nobject_id = "{obj}"\nmaterial = "{material}"\n[object]\n'
+            f"radius_mm = {radius:.1f}\nheight_mm = {height:.1f}\n"
+            f"turntable_radius_mm = 60.0\n[scan]\nlevels_mm = {levels}\n"
+            f"angles_deg = {angles}\nhalf_width_mm = {half:.1f}\nstep_mm = {step}\n"
+            f'modality = "{modality}"\n')
+
+
+def stage_household(d: Demo) -> Section:
+    """Every household object scanned into one database (Fig. 4 contours)."""
+    from dmdsm.sim.objects import HOUSEHOLD, bounding_size, household
+
+    from .db_cmd import scan_points
+    from .plots import contour_figure
+    from .scandb import read_scan
+
+    sec = Section("4. Household set scanned into the database (paper §V-B, Fig. 4)")
+    names = list(HOUSEHOLD)
+    if d.quick:  # one object per material
+        seen: set[str] = set()
+        names = [n for n in names if not (HOUSEHOLD[n][0] in seen or seen.add(HOUSEHOLD[n][0]))]
+    rows = []
+    for name in names:
+        material = HOUSEHOLD[name][0]
+        obj = household(name)[0]
+        w, dep, height = bounding_size(obj)
+        boxy = type(obj.shape).__name__ == "Box"
+        radius = float(np.hypot(w, dep) / 2) if boxy else w / 2
+        mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
+        d.mount(name)
+        plan = d.out / "plans" / f"{name}.toml"
+        plan.write_text(_plan(name, material, radius + 1.0, height,
+                              f"[{min(0.5 * height, 40.0):.1f}]",
+                              "[0.0, 180.0]" if d.quick else "[0.0, 90.0, 180.0, 270.0]",
+                              0.35 * w,
+                              8.0 if d.quick else 4.0, mod))
+        s = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
+                             str(d.out / "calibration.toml"), "--ranging",
+                             str(d.out / "ranging.json"), "--plan", str(plan), "-o",
+                             str(d.out / "db"), "--json").splitlines()[-1])
+        scan = read_scan(Path(s["file"]), waveforms=False)
+        p = scan.points
+        n_oa = int(np.isfinite(p["distance_oa_mm"]).sum())
+        n_us = int(np.isfinite(p["distance_us_mm"]).sum())
+        rows.append([name, material, mod, s["points"], n_oa, n_us, s["points_per_s"]])
+        if name in ("soda_can", "apple_red", "foam_block", "glass_jar", "tissue_box",
+                    "steel_can") or d.quick:
+            contour_figure(scan_points(scan), d.out / f"fig4_{name}.png", title=name)
+            sec.figures.append((d.out / f"fig4_{name}.png", f"{name} ({material}): "
+                                f"reconstructed contour, OA squares, US crosses"))
+        expected = {"us": n_oa == 0 and n_us > 0, "oa": n_us == 0 and n_oa > 0,
+                    "both": n_oa > 0 and n_us > 0}[mod]
+        sec.ok &= expected
+    sec.table(["object", "material", "modality", "points", "OA points", "US points",
+               "points/s"], rows)
+    sec.text.append(f"Database: {d.out / 'db'} (`dmdsm db list --db {d.out / 'db'}`).")
+    return sec
+
+
+def stage_classify(d: Demo) -> Section:
+    """BOSS and MiniRocket on the database (when the classification module is present)."""
+    sec = Section("5. Material classification (paper §V-B2, Fig. 5)")
     try:
-        st = StageClient(server.ports["stage"].name_for_host)
-        sc = SensorClient(server.ports["sensor"].name_for_host)
-        st.home()
-        st.move(x=235, y=266, z=20, wait=True)
-        st.wait()
-        setup, rng_report = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20},
-                                            sim.truth()["distance_mm"], steps=21,
-                                            step_mm=1.0, shots=2 if quick else 4)
-        setup.save(out / "ranging.json")
-        v = sim.scene.v / np.linalg.norm(sim.scene.v)
-        frame = table_frame(sim.scene.n)
-        mount(rig_horizontal())
-        tip = sim.scene.X_R + frame @ np.array([0.0, -10.0, 20.0]) - 6 * v
-        plan = RigPlan(tip_start=tuple(tip))
-        rows = scan_rig(st, sc, setup, plan, "tip")
-        mount(rig_vertical())
-        fil = sim.scene.X_R + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * v
-        plan = RigPlan(tip_start=plan.tip_start, edge_start=(fil[0], fil[1], 0.0))
-        rows += scan_rig(st, sc, setup, plan, "edge")
-        st.close()
-        sc.close()
+        from . import classify_cmd  # noqa: F401
+    except ImportError:
+        sec.ok = False
+        sec.text.append("dmdsm classify is not available in this build.")
+        return sec
+    out = d.run("classify", "evaluate", "--db", str(d.out / "db"), "--out",
+                str(d.out / "classify"), "--trials", "5" if d.quick else "50", "--json")
+    res = json.loads(out.splitlines()[-1])
+    for name, r in res.get("classifiers", {}).items():
+        sec.table([f"{name}: class", "accuracy (random 3:1 splits)",
+                   "accuracy (leave one object out)"],
+                  [[c, f"{a:.1%}", f"{r['loo'].get(c, float('nan')):.1%}"]
+                   for c, a in r["random"].items()])
+    for png in sorted((d.out / "classify").glob("*.png")):
+        sec.figures.append((png, f"Confusion matrix {png.stem} (like the paper's Fig. 5)"))
+    sec.text.append("Simulated data: the emulator's materials are models (docs/sim.md), so "
+                    "these figures show the pipeline works, not that the paper is reproduced.")
+    return sec
+
+
+def run_demo(out_dir: str, quick: bool = False, speed: float = 8.0) -> int:
+    """Run every stage, write out/report.html and out/report.md; 0 if all passed."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_all = time.perf_counter()
+    d = Demo(out, quick, speed)
+    sections: list[Section] = []
+    stages = [stage_ranging, stage_rig, stage_block, stage_household, stage_classify]
+    try:
+        for stage in stages:
+            t0 = time.perf_counter()
+            try:
+                got = stage(d)
+            except (RuntimeError, ValueError, OSError) as e:
+                got = Section(stage.__doc__.splitlines()[0], ok=False, text=[str(e)])
+            sec = got[0] if isinstance(got, tuple) else got
+            sec.seconds = time.perf_counter() - t0
+            sections.append(sec)
+            print(f"{sec.title}: {'ok' if sec.ok else 'FAILED'} ({sec.seconds:.0f} s)",
+                  flush=True)
+            if not sec.ok and stage in (stage_ranging, stage_rig):
+                break  # later stages need these
     finally:
-        server.stop()
-        thread.join(5)
-    data_file = out / "rig.csv"
-    data_file.unlink(missing_ok=True)
-    append_rows(data_file, rows)
-    raw = {c: np.array([r[c] for r in rows]) for c in COLUMNS}
-    r = solve(center_points(raw, "oa", 0.5, 0.25))
-    write_result(r, out / "calibration.toml", str(data_file))
-    n_true = sim.scene.n / np.linalg.norm(sim.scene.n)
-
-    def row(name: str, est: np.ndarray, sd: np.ndarray, true: np.ndarray) -> str:
-        vals = "; ".join(f"{a:.4f} ± {b:.4f}" for a, b in zip(est, sd))
-        return f"| {name} | [{vals}] | [{'; '.join(f'{t:.4f}' for t in true)}] |"
-
-    ang_v = float(np.degrees(np.arccos(np.clip(r.v @ v, -1, 1))))
-    ang_n = float(np.degrees(np.arccos(np.clip(r.n @ n_true, -1, 1))))
-    dxr = float(np.linalg.norm(r.X_R[:2] - sim.scene.X_R[:2]))
-    lines = [
-        "Stage: calibration (paper §IV; ranging calibration, tip and edge frames, MLE)",
-        "",
-        f"Ranging: OA {rng_report.get('oa', '-')}; US {rng_report.get('us', '-')}",
-        "",
-        "| parameter | estimate ± std | emulator truth (paper Table I) |",
-        "|---|---|---|",
-        row("v", r.v, r.std["v"], v),
-        row("n", r.n, r.std["n"], n_true),
-        row("X_R (mm)", r.X_R, r.std["X_R"], sim.scene.X_R),
-        "",
-        f"Errors: v {ang_v:.3f} deg, n {ang_n:.3f} deg, X_R {dxr:.3f} mm; rms residual "
-        f"{r.rms_residual_mm * 1000:.1f} um; {len(rows)} raw points in {data_file}; "
-        f"{time.perf_counter() - t0:.0f} s.",
-        "Next stages (scan, reconstruction, classification) land with issues #8, #9, #11.",
-    ]
-    return lines, bool(ang_v < 2.0 and ang_n < 0.5 and dxr < 0.3)
+        d.close()
+    title = f"dmdsm demo{' (quick)' if quick else ''}: the paper's experiments on the emulator"
+    total = time.perf_counter() - t_all
+    sections[-1].text.append(f"Total {total:.0f} s on this machine.")
+    (out / "report.md").write_text(markdown(title, sections))
+    (out / "report.html").write_text(html_page(title, sections))
+    (out / "summary.json").write_text(json.dumps(
+        {"ok": all(s.ok for s in sections), "seconds": total,
+         "stages": {s.title: {"ok": s.ok, "seconds": s.seconds, "tables": s.tables}
+                    for s in sections}}, indent=1))
+    print(f"report: {out / 'report.html'} ({total:.0f} s)")
+    return 0 if all(s.ok for s in sections) and len(sections) == len(stages) else 1

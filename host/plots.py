@@ -54,3 +54,39 @@ def contour_figure(pts: dict, path: Path, size_xy: tuple[float, float] | None = 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def rig_figure(raw: dict[str, np.ndarray], path: Path, modality: str = "oa") -> None:
+    """PNG like the paper's Fig. 2: response amplitude over each tip frame's X-Z raster and
+    over each edge frame's X sweeps (one row per Z level)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sel = raw["modality"] == modality
+    tips = sorted(set(raw["frame"][sel & (raw["step"] == "tip")].astype(int).tolist()))
+    edges = sorted(set(raw["frame"][sel & (raw["step"] == "edge")].astype(int).tolist()))
+    panels = [("tip", f) for f in tips] + [("edge", f) for f in edges]
+    fig, axes = plt.subplots(1, max(len(panels), 1), figsize=(3.0 * max(len(panels), 1), 3.2),
+                             squeeze=False)
+    for ax, (step, f) in zip(axes[0], panels):
+        m = sel & (raw["step"] == step) & (raw["frame"] == f)
+        amp = np.nan_to_num(raw["amplitude"][m])
+        if step == "tip":
+            x, y = raw["sx_mm"][m] - raw["sx_mm"][m].mean(), raw["sz_mm"][m]
+            ax.tricontourf(x, y - y.mean(), amp, levels=12, cmap="viridis")
+            ax.set_title(f"tip frame {f}: Y {raw['sy_mm'][m].mean():.1f} mm", fontsize=8)
+            ax.set_xlabel("X - centre (mm)", fontsize=8)
+            ax.set_ylabel("Z - centre (mm)", fontsize=8)
+        else:
+            lines = raw["line"][m].astype(int)
+            x = raw["sx_mm"][m] - raw["sx_mm"][m].mean()
+            ax.scatter(x, raw["sz_mm"][m], c=amp, s=12, marker="s", cmap="viridis")
+            ax.set_title(f"edge frame {f}: {raw['theta_deg'][m][0]:.0f} deg, "
+                         f"{len(set(lines.tolist()))} lines", fontsize=8)
+            ax.set_xlabel("X - centre (mm)", fontsize=8)
+            ax.set_ylabel("Z (mm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -23,6 +23,13 @@ from .demo_report import Section, html_page, markdown
 
 PAPER_E = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
 US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
+TITLES = {
+    "stage_ranging": "1. Ranging calibration (t0, c per modality; the stage as a ruler)",
+    "stage_rig": "2. Scanner calibration with the rig (paper §IV-D, Table I)",
+    "stage_block": "3. Aluminium block validation (paper §V-A2, Fig. 3)",
+    "stage_household": "4. Household set scanned into the database (paper §V-B, Fig. 4)",
+    "stage_classify": "5. Material classification (paper §V-B2, Fig. 5)",
+}
 
 
 class Demo:
@@ -52,7 +59,8 @@ class Demo:
         return buf.getvalue()
 
     def mount(self, scene: str) -> None:
-        """The user puts another object on the turntable."""
+        """The user jogs the sensor back and puts another object on the turntable."""
+        self.run("stage", "move", "-y", "150", *self.ports[2:])
         (self.out / "ports" / "scene").write_text(scene + "\n")
         time.sleep(0.5)  # the emulator checks the file every 0.2 s
 
@@ -69,7 +77,7 @@ def _truth(sim: object) -> dict[str, np.ndarray]:
 
 def stage_ranging(d: Demo) -> Section:
     """Step the sensor away from the block's face: t0 per modality (c from 20 degC air)."""
-    sec = Section("1. Ranging calibration (t0, c per modality; the stage as a ruler)")
+    sec = Section(TITLES["stage_ranging"])
     d.run("stage", "home", *d.ports[2:])
     d.run("stage", "move", "-x", "235", "-y", "266", "-z", "20", *d.ports[2:])
     start = d.sim.truth()["distance_mm"]  # a gauge block would give this on the machine
@@ -92,7 +100,7 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     from .calibration_io import read_raw
     from .plots import rig_figure
 
-    sec = Section("2. Scanner calibration with the rig (paper §IV-D, Table I)")
+    sec = Section(TITLES["stage_rig"])
     tr = _truth(d.sim)
     frame = table_frame(tr["n"])
     data, cal = d.out / "rig.csv", d.out / "calibration.toml"
@@ -135,7 +143,7 @@ def stage_block(d: Demo) -> Section:
     from .db_cmd import scan_points, validate_block
     from .scandb import read_scan
 
-    sec = Section("3. Aluminium block validation (paper §V-A2, Fig. 3)")
+    sec = Section(TITLES["stage_block"])
     d.mount("aluminium_block")
     plan = d.out / "plans" / "aluminium_block.toml"
     plan.parent.mkdir(exist_ok=True)
@@ -187,7 +195,7 @@ def stage_household(d: Demo) -> Section:
     from .plots import contour_figure
     from .scandb import read_scan
 
-    sec = Section("4. Household set scanned into the database (paper §V-B, Fig. 4)")
+    sec = Section(TITLES["stage_household"])
     names = list(HOUSEHOLD)
     if d.quick:  # one object per material
         seen: set[str] = set()
@@ -232,7 +240,7 @@ def stage_household(d: Demo) -> Section:
 
 def stage_classify(d: Demo) -> Section:
     """BOSS and MiniRocket on the database (when the classification module is present)."""
-    sec = Section("5. Material classification (paper §V-B2, Fig. 5)")
+    sec = Section(TITLES["stage_classify"])
     try:
         from . import classify_cmd  # noqa: F401
     except ImportError:
@@ -268,7 +276,7 @@ def run_demo(out_dir: str, quick: bool = False, speed: float = 8.0) -> int:
             try:
                 got = stage(d)
             except (RuntimeError, ValueError, OSError) as e:
-                got = Section(stage.__doc__.splitlines()[0], ok=False, text=[str(e)])
+                got = Section(TITLES[stage.__name__], ok=False, text=[str(e)])
             sec = got[0] if isinstance(got, tuple) else got
             sec.seconds = time.perf_counter() - t0
             sections.append(sec)
@@ -284,8 +292,8 @@ def run_demo(out_dir: str, quick: bool = False, speed: float = 8.0) -> int:
     (out / "report.md").write_text(markdown(title, sections))
     (out / "report.html").write_text(html_page(title, sections))
     (out / "summary.json").write_text(json.dumps(
-        {"ok": all(s.ok for s in sections), "seconds": total,
-         "stages": {s.title: {"ok": s.ok, "seconds": s.seconds, "tables": s.tables}
+        {"ok": bool(all(s.ok for s in sections)), "seconds": total,
+         "stages": {s.title: {"ok": bool(s.ok), "seconds": s.seconds, "tables": s.tables}
                     for s in sections}}, indent=1))
     print(f"report: {out / 'report.html'} ({total:.0f} s)")
     return 0 if all(s.ok for s in sections) and len(sections) == len(stages) else 1

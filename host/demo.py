@@ -132,6 +132,8 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
                     f"(in the table plane); rms residual {r['rms_residual_mm'] * 1e3:.1f} um; "
                     f"raw points in {data.name}, result in {cal.name}.")
     sec.ok = ang["v"] < 2.0 and ang["n"] < 0.5 and dxr < 0.3
+    sec.values = {"v_error_deg": ang["v"], "n_error_deg": ang["n"], "X_R_error_mm": dxr,
+                  "result": r, "truth": {k: np.asarray(x).tolist() for k, x in tr.items()}}
     rig_figure(read_raw(data), d.out / "fig2_rig.png")
     sec.figures.append((d.out / "fig2_rig.png", "Response amplitude over the tip frames' "
                         "rasters and the edge frames' sweeps (like the paper's Fig. 2)"))
@@ -169,6 +171,7 @@ def stage_block(d: Demo) -> Section:
                      f"{g['e_mean_mm']:.3f} ± {g['e_std_mm']:.3f}", f"{pm:.2f} ± {ps:.2f}",
                      f["n"]])
         sec.ok &= g["e_mean_mm"] <= pm + 3 * g["e_std_mm"] / np.sqrt(g["n"])
+        sec.values[m] = {"calibrated": f, "true_parameters": g, "paper": [pm, ps]}
     sec.table(["modality", "e (mm), calibration from stage 2",
                "e (mm), emulator's true v, n, X_R", "paper", "points"], rows)
     sec.text.append(f"{s['points']} points at {s['points_per_s']} points/s; per point (ms): "
@@ -224,6 +227,8 @@ def stage_household(d: Demo) -> Section:
         n_oa = int(np.isfinite(p["distance_oa_mm"]).sum())
         n_us = int(np.isfinite(p["distance_us_mm"]).sum())
         rows.append([name, material, mod, s["points"], n_oa, n_us, s["points_per_s"]])
+        sec.values[name] = {"material": material, "modality": mod, "points": s["points"],
+                            "oa_points": n_oa, "us_points": n_us}
         if name in ("soda_can", "apple_red", "foam_block", "glass_jar", "tissue_box",
                     "steel_can") or d.quick:
             contour_figure(scan_points(scan), d.out / f"fig4_{name}.png", title=name)
@@ -250,6 +255,7 @@ def stage_classify(d: Demo) -> Section:
     out = d.run("classify", "evaluate", "--db", str(d.out / "db"), "--out",
                 str(d.out / "classify"), "--trials", "5" if d.quick else "50", "--json")
     res = json.loads(out.splitlines()[-1])
+    sec.values = res
     for name, r in res.get("classifiers", {}).items():
         sec.table([f"{name}: class", "accuracy (random 3:1 splits)",
                    "accuracy (leave one object out)"],
@@ -293,7 +299,8 @@ def run_demo(out_dir: str, quick: bool = False, speed: float = 8.0) -> int:
     (out / "report.html").write_text(html_page(title, sections))
     (out / "summary.json").write_text(json.dumps(
         {"ok": bool(all(s.ok for s in sections)), "seconds": total,
-         "stages": {s.title: {"ok": bool(s.ok), "seconds": s.seconds, "tables": s.tables}
-                    for s in sections}}, indent=1))
+         "stages": {s.title.split(".")[0]: {"title": s.title, "ok": bool(s.ok),
+                                            "seconds": s.seconds, "values": s.values}
+                    for s in sections}}, indent=1, default=float))
     print(f"report: {out / 'report.html'} ({total:.0f} s)")
     return 0 if all(s.ok for s in sections) and len(sections) == len(stages) else 1

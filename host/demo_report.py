@@ -19,6 +19,7 @@ class Section:
     tables: list[tuple[list[str], list[list[str]]]] = field(default_factory=list)
     figures: list[tuple[Path, str]] = field(default_factory=list)
     seconds: float = 0.0
+    values: dict = field(default_factory=dict)  # the figures, for summary.json and tests
 
     def table(self, header: list[str], rows: list[list[object]]) -> None:
         """Add a table (cells formatted with str)."""

@@ -1,0 +1,40 @@
+"""The quick demo end to end (the user's first command), its report's figures checked against
+the paper's targets."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
+
+
+def test_quick_demo_meets_the_paper_and_writes_the_report(tmp_path):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "demo", "--quick", "--out",
+                        str(out)], capture_output=True, text=True, timeout=900)
+    summary = json.loads((out / "summary.json").read_text())
+    st = summary["stages"]
+    assert st["1"]["ok"], r.stdout + r.stderr
+    rig = st["2"]["values"]
+    assert rig["v_error_deg"] < 2.0 and rig["n_error_deg"] < 0.5 and rig["X_R_error_mm"] < 0.3
+    for m, (mean, std) in PAPER.items():
+        v = st["3"]["values"][m]
+        g = v["true_parameters"]
+        # ranging + scanning + reconstruction: the paper's figure within 3 standard errors
+        assert g["e_mean_mm"] <= mean + 3 * g["e_std_mm"] / np.sqrt(g["n"]), (m, g)
+        # with the quick (coarse) rig calibration of stage 2
+        assert v["calibrated"]["e_mean_mm"] <= mean + 0.1, (m, v["calibrated"])
+    house = st["4"]["values"]
+    assert {h["material"] for h in house.values()} == {
+        "aluminium", "apple", "foam", "glass", "paper", "plastic", "steel"}
+    for name, h in house.items():  # the paper's Fig. 4 first row: which modality works
+        want_oa = h["material"] not in ("glass", "steel")
+        want_us = h["material"] != "foam"
+        assert (h["oa_points"] > 0) == want_oa and (h["us_points"] > 0) == want_us, (name, h)
+        assert max(h["oa_points"], h["us_points"]) >= 0.5 * h["points"], (name, h)
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 9  # Fig. 2, Fig. 3 and seven Fig. 4s
+    assert "Table I" in html and "0.06 ± 0.06" in html
+    assert summary["seconds"] < 300, summary["seconds"]

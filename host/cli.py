@@ -7,7 +7,16 @@ import sys
 
 from dmdsm.protocol import tool as protocol_tool
 
-from . import __version__, calibration_io, db_cmd, device_cmds, range_cmd, scan_cmd, sim_cmd
+from . import (
+    __version__,
+    calibration_io,
+    classify_cmd,
+    db_cmd,
+    device_cmds,
+    range_cmd,
+    scan_cmd,
+    sim_cmd,
+)
 from . import flash as flash_cmd
 from .config import ConfigError
 from .safety import UnsafeMove
@@ -33,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     calibration_io.add_parser(sub)
     scan_cmd.add_parser(sub)
     db_cmd.add_parsers(sub)
+    classify_cmd.add_parser(sub)
     d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")

@@ -40,6 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, default=50, help="evaluate: random 3:1 splits")
     p.add_argument("--boss-trials", type=int, default=10,
                    help="evaluate: random splits for BOSS (about 20 s per fit)")
+    p.add_argument("--no-loo", action="store_true",
+                   help="evaluate: skip the leave-one-object-out protocol")
     p.add_argument("--out", type=Path, default=Path("classify"),
                    help="evaluate: folder for confusion matrices (CSV, PNG)")
     p.add_argument("-o", "--model", type=Path, default=Path("material.model"))
@@ -148,8 +150,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     for name in args.classifiers:
         r = {}
         trials = args.boss_trials if name == "boss" else args.trials
-        for proto, cm in (("random", evaluate_random(ds, name, trials)),
-                          ("loo", evaluate_loo(ds, name))):
+        protocols = [("random", lambda n=name, k=trials: evaluate_random(ds, n, k))]
+        if not args.no_loo:
+            protocols.append(("loo", lambda n=name: evaluate_loo(ds, n)))
+        for proto, run in protocols:
+            cm = run()
             r[proto] = per_class_accuracy(cm, classes)
             np.savetxt(args.out / f"confusion_{name}_{proto}.csv", cm, fmt="%d",
                        delimiter=",", header=",".join(classes))

@@ -111,6 +111,9 @@ bench: deps firmware
 	$(PY) bench/firmware.py
 	$(PY) bench/links.py
 	$(PY) bench/ranging.py
+	$(PY) bench/calibration.py
+	$(PY) bench/scan.py
+	$(PY) bench/classify.py
 
 ## ---------------------------------------------------------------- demo
 demo: deps

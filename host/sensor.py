@@ -86,6 +86,10 @@ class SensorClient:
         self.link_error: str | None = None
         self.shots: Shots | None = None
         self.identity: Message | None = None
+        # what this client set and last read, so acquire() needs 2 round trips, not 4;
+        # forgotten on reconnect and when a waveform does not match the cached config
+        self._config: dict | None = None
+        self._counters: dict | None = None
         self._open()
         self.identity = self.handshake()
 
@@ -110,6 +114,7 @@ class SensorClient:
     def reconnect(self, wait_s: float = 10.0) -> None:
         """Reopen the port (after a USB re-enumeration) and repeat the handshake."""
         self.close()
+        self._config = self._counters = None
         end = time.monotonic() + wait_s
         while True:
             try:
@@ -148,6 +153,8 @@ class SensorClient:
     def _route(self, m: Message) -> None:
         if m.name == "waveform":
             s = self.shots
+            if s is not None and m.samples.size != s.samples.shape[1]:
+                self._config = None  # the board's config changed under us (a reset?)
             if s is not None and m.shot_id < len(s.received) and not s.received[m.shot_id]:
                 i = m.shot_id
                 n = min(m.samples.size, s.samples.shape[1])
@@ -236,6 +243,7 @@ class SensorClient:
             raise SensorError(f"unknown setting {sorted(unknown)[0]}; known: "
                               f"{', '.join(CONFIG_FIELDS)}")
         self._expect_ack(self.request("set_config", **new), "set_config")
+        self._config = dict(new)
         return new
 
     def status(self) -> dict:
@@ -249,12 +257,13 @@ class SensorClient:
     def acquire(self, n_shots: int, timeout_s: float | None = None,
                 progress: object | None = None) -> Shots:
         """Arm for n_shots waveforms and collect them; lost ones are reported, not waited for."""
-        cfg = self.request("get_config").fields
+        cfg = self._config or dict(self.request("get_config").fields)
+        self._config = cfg
         dtype = np.dtype(SAMPLE_DTYPES[cfg["sample_format"]])
         shots = Shots(np.zeros((n_shots, cfg["n_samples"]), dtype), np.zeros(n_shots, bool),
                       np.zeros(n_shots, np.uint64), np.zeros(n_shots, np.uint16),
                       np.zeros(n_shots, np.uint16), dict(cfg))
-        before = self.status()
+        before = self._counters or self.status()
         rejected0 = self.decoder.stats.errors
         self.shots = shots
         try:
@@ -265,6 +274,7 @@ class SensorClient:
         finally:
             self.shots = None
         after = self.status()
+        self._counters = after
         shots.device_dropped = after["shots_dropped"] - before["shots_dropped"]
         shots.adc_overruns = after["adc_overruns"] - before["adc_overruns"]
         shots.link_rejected = self.decoder.stats.errors - rejected0

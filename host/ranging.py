@@ -1,11 +1,15 @@
 """Ranging: time of arrival of a reference pulse in a batch of waveforms, then distance.
 
 Plain functions on numpy arrays, no I/O. The estimator is a matched filter computed with
-FFTs for the whole batch, the first echo picked on the correlation's envelope, the right
-carrier cycle taken next to it, and sub-sample refinement on the band-limited correlation
-evaluated on a 1/16-sample grid (an exact partial inverse DFT, not interpolation of the raw
-samples) with a parabola through the best three points: unbiased at 3-4 samples per cycle,
-where parabolic interpolation of the raw correlation is not.
+single-precision FFTs for the whole batch, the first echo picked on the correlation's
+envelope, the right carrier cycle taken next to it, and sub-sample refinement on the
+band-limited correlation evaluated on a 1/16-sample grid with a parabola through the best
+three points: unbiased at 3-4 samples per cycle, where parabolic interpolation of the raw
+correlation is not. Between samples the correlation is predicted from its 23 samples around
+the peak with the least-mean-square weights for the template's power spectrum (which is the
+spectrum of the matched filter's output, noise and echoes alike): 0.3-0.6 % rms prediction
+error, against 20-30 % for linear interpolation, for a few hundred multiplications a shot
+instead of an inverse DFT at every grid point.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ import numpy as np
 import scipy.fft as sfft
 
 FINE = 16  # fine grid: points per sample for the refinement
+TAPS = 10  # correlation samples each side used to predict it between samples
+NUGGET = 1e-7  # relative white floor in the predictor design (float32 rounding)
 
 
 @dataclass(frozen=True)
@@ -61,7 +67,8 @@ def gaussian_pulse(fs_hz: float, fc_hz: float, bw: float, length: int | None = N
 
 
 class MatchedFilter:
-    """Precomputed spectra for one template and waveform length (reuse across batches)."""
+    """Precomputed spectra and interpolation weights for one template and waveform length
+    (reuse across batches)."""
 
     def __init__(self, template: Template, n_samples: int) -> None:
         self.t = template
@@ -69,76 +76,64 @@ class MatchedFilter:
         padded = np.zeros(n_samples)
         m = min(len(template.pulse), n_samples)
         padded[:m] = template.pulse[:m]
-        self.R = np.conj(np.fft.rfft(padded))
-        k = np.arange(self.R.size)
-        self.omega = 2 * np.pi * k / n_samples
-        offs = (np.arange(-FINE // 2, FINE // 2 + 1)) / FINE  # -0.5 .. +0.5 samples
-        w = np.where((k == 0) | (k == n_samples // 2), 1.0, 2.0) / n_samples
-        self.fine = w[:, None] * np.exp(1j * np.outer(self.omega, offs))  # (K, FINE+1)
-        self.offsets = offs
-        f = np.fft.rfftfreq(n_samples, 1 / template.fs_hz)
-        power = np.abs(self.R) ** 2
-        self.fc_hz = float((f * power).sum() / power.sum())
-        # cycle choice on the band-limited correlation: half-sample grid over +-1 period
-        self.period = template.fs_hz / self.fc_hz
-        reach = int(np.ceil(self.period))
-        self.coarse_offsets = np.arange(-2 * reach, 2 * reach + 1) / 2
-        self.coarse = w[:, None] * np.exp(1j * np.outer(self.omega, self.coarse_offsets))
-        # e^{j w k0} for every integer lag: moving lag k0 to the origin without exp()
-        self.lag_phase = np.exp(1j * np.outer(np.arange(n_samples), self.omega)).astype(
-            np.complex64)
+        spec = np.fft.rfft(padded)
         # single precision for the batch work: 2x less memory traffic, ample for 1e-4 sample
-        self.R = self.R.astype(np.complex64)
-        # the refinement only needs the bins where the template has energy
-        self.band = np.nonzero(np.abs(self.R) > 3e-3 * np.abs(self.R).max())[0]
-        self.coarse = self.coarse[self.band].astype(np.complex64)
-        self.fine = self.fine[self.band].astype(np.complex64)
-        self.lag_phase = np.ascontiguousarray(self.lag_phase[:, self.band])
+        self.R = np.conj(spec).astype(np.complex64)
+        f = np.fft.rfftfreq(n_samples, 1 / template.fs_hz)
+        power = np.abs(spec) ** 2
+        self.fc_hz = float((f * power).sum() / power.sum())
+        self.period = template.fs_hz / self.fc_hz
+        # the correlation between samples, predicted from its samples around the peak
+        reach = int(np.ceil(self.period))
+        self.coarse_offsets = np.arange(-2 * reach, 2 * reach + 1) / 2  # cycle choice
+        self.offsets = np.arange(-FINE // 2, FINE // 2 + 1) / FINE  # -0.5 .. +0.5 samples
+        self.coarse_lags = np.arange(-reach - TAPS, reach + TAPS + 1)
+        self.fine_lags = np.arange(-TAPS - 1, TAPS + 2)
+        self.coarse = interpolation_weights(power, n_samples, self.coarse_lags,
+                                            self.coarse_offsets)
+        self.fine = interpolation_weights(power, n_samples, self.fine_lags, self.offsets)
 
     def __call__(self, x: np.ndarray, gate: tuple[int, int] | None = None,
                  noise: slice | None = None, min_snr_db: float = 15.0,
-                 chunk: int = 128) -> Arrivals:
-        """Arrivals in waveforms x (n_shots, n_samples) of baseline-free counts."""
+                 chunk: int = 256) -> Arrivals:
+        """Arrivals in waveforms x (n_shots, n_samples) of baseline-free counts; `gate`
+        (samples) bounds where an arrival may be, `noise` is the quiet slice for the noise
+        std, `chunk` the shots per pass (cache-sized)."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float32))
-        if len(x) > chunk:  # cache-sized batches
+        if len(x) > chunk:
             parts = [self(x[i:i + chunk], gate, noise, min_snr_db, chunk)
                      for i in range(0, len(x), chunk)]
             return Arrivals(*(np.concatenate([getattr(p, f) for p in parts])
                               for f in ("index", "amplitude", "snr_db", "reason")))
         n_shots, n = x.shape
         lo, hi = gate or (0, n)
-        X = sfft.rfft(x, axis=1)  # scipy: single-precision transforms ~6x faster here
-        C = X * self.R
+        sigma_c = _noise_sigma(x, noise) * np.sqrt(self.t.energy)  # correlation noise std
+        C = sfft.rfft(x, axis=1)  # scipy: single-precision transforms ~6x faster here
+        C *= self.R
         c = sfft.irfft(C, n=n, axis=1)  # c[k]: template starting at sample k
         center = self.t.center
         # lags whose arrival (k + center) lies in the gate
         k_lo, k_hi = max(int(np.floor(lo - center)), 0), min(int(np.ceil(hi - center)), n)
         seg = c[:, k_lo:k_hi]
-        period = max(2, int(round(self.t.fs_hz / self.fc_hz)))
-        # envelope: |correlation| maxima over blocks of one carrier period
-        nb = seg.shape[1] // period
-        mag = np.abs(seg[:, :nb * period])
-        env = mag[:, 0::period].copy()
-        for j in range(1, period):
-            np.maximum(env, mag[:, j::period], out=env)
-        sigma = _noise_sigma(x, noise)
-        sigma_c = sigma * np.sqrt(self.t.energy)  # correlation noise std
-        peak = env.max(axis=1)
-        # the first echo: the first envelope point above half the gate's maximum; its main
-        # lobe is the largest correlation value within one pulse length after it
+        period = max(2, int(round(self.period)))
+        mag = np.abs(seg, out=C.view(np.float32)[:, :seg.shape[1]])  # C is spent: reuse it
+        peak = mag.max(axis=1)
+        # the first echo: the first carrier period whose envelope (|correlation|) exceeds
+        # half the gate's maximum; its main lobe is the largest correlation value within one
+        # pulse length after it
         thr = np.minimum(np.maximum(0.5 * peak, 6.0 * sigma_c), peak)  # above the noise
-        first = (env >= thr[:, None]).argmax(axis=1) * period
-        rows = np.arange(n_shots)
+        first = (mag >= thr[:, None]).argmax(axis=1) // period * period
         span = max(period, len(self.t.pulse)) + period
-        win = np.clip(first[:, None] + np.arange(span), 0, seg.shape[1] - 1)
-        vals = seg[rows[:, None], win]
-        k0 = win[rows, vals.argmax(axis=1)] + k_lo
-        Cs = C[:, self.band] * self.lag_phase[k0 % n]  # lag k0 moved to the origin (in band)
-        best = self.coarse_offsets[(Cs @ self.coarse).real.argmax(axis=1)]  # right cycle
-        step = np.round(best).astype(int)
-        Cs *= self.lag_phase[step % n]
-        k1 = k0 + step
-        frac, amp = self._refine(Cs)
+        flat = c.reshape(-1)
+        base = np.arange(n_shots) * n
+        win = np.minimum(first[:, None] + np.arange(span), seg.shape[1] - 1) + k_lo
+        k0 = win[np.arange(n_shots), flat[base[:, None] + win].argmax(axis=1)]
+        # the right carrier cycle on a half-sample grid, then the refinement around it
+        around = flat[base[:, None] + (k0[:, None] + self.coarse_lags) % n]
+        k1 = k0 + np.round(self.coarse_offsets[(around @ self.coarse).argmax(axis=1)]
+                           ).astype(int)
+        around = flat[base[:, None] + (k1[:, None] + self.fine_lags) % n]
+        frac, amp = self._refine(around @ self.fine)
         index = k1 + frac + center
         # SNR from the refined peak: the integer-lag envelope misses up to ~4 dB of it
         snr_db = 20 * np.log10(np.maximum(np.abs(amp), 1e-30) / np.maximum(sigma_c, 1e-30))
@@ -149,12 +144,11 @@ class MatchedFilter:
         return Arrivals(np.where(ok, index.astype(float), np.nan),
                         amp.astype(float) / self.t.energy, snr_db.astype(float), reason)
 
-    def _refine(self, Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fractional offset (samples) of the correlation maximum near lag 0 of the shifted
-        correlation spectrum Cs."""
-        vals = (Cs @ self.fine).real  # (n_shots, FINE+1) on the fine grid
-        j = np.clip(vals.argmax(axis=1), 1, FINE - 1)
-        rows = np.arange(len(Cs))
+    def _refine(self, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fractional offset (samples) of the correlation maximum from its values `vals`
+        (n_shots, FINE + 1) on the fine grid, and the maximum."""
+        j = np.minimum(np.maximum(vals.argmax(axis=1), 1), FINE - 1)
+        rows = np.arange(len(vals))
         ym, y0, yp = vals[rows, j - 1], vals[rows, j], vals[rows, j + 1]
         denom = ym - 2 * y0 + yp
         delta = np.where(denom < 0, 0.5 * (ym - yp) / np.where(denom < 0, denom, -1), 0.0)
@@ -162,10 +156,29 @@ class MatchedFilter:
         return self.offsets[j] + delta * step, y0
 
 
+def interpolation_weights(power: np.ndarray, n: int, lags: np.ndarray, offsets: np.ndarray
+                          ) -> np.ndarray:
+    """Weights (len(lags), len(offsets)) predicting a periodic sequence of n samples at
+    fractional `offsets` (samples) from its samples at integer `lags`: the least-mean-square
+    predictor for a sequence whose spectrum is `power` (rfft bins) - the matched filter's
+    output, whose noise and echoes both have the template's power spectrum."""
+    k = np.arange(power.size)
+    w = np.where((k == 0) | (2 * k == n), 1.0, 2.0) * power / power.max()  # both sides
+
+    def autocorr(d: np.ndarray) -> np.ndarray:
+        return np.cos(2 * np.pi * np.multiply.outer(d, k) / n) @ w / n
+
+    gram = autocorr(lags[:, None] - lags[None, :])
+    gram += NUGGET * autocorr(np.zeros(1))[0] * np.eye(lags.size)
+    target = autocorr(lags[:, None] - offsets[None, :])
+    return np.linalg.solve(gram, target).astype(np.float32)
+
+
 def _noise_sigma(x: np.ndarray, noise: slice | None) -> np.ndarray:
     """Per-waveform noise std from a quiet slice (default: the last eighth)."""
     seg = x[:, noise] if noise is not None else x[:, -max(16, x.shape[1] // 8):]
-    return seg.std(axis=1)
+    dev = seg - np.add.reduce(seg, axis=1, keepdims=True) / seg.shape[1]
+    return np.sqrt(np.einsum("ij,ij->i", dev, dev) / dev.shape[1])
 
 
 def crlb_samples(template: Template, sigma: float, gain: float = 1.0) -> float:

@@ -12,9 +12,16 @@ import serial
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
 
 
+def interruptible():
+    """Ctrl-C reaches the child even when this test run was started in the background (a
+    shell then ignores SIGINT, and Python keeps an inherited SIG_IGN)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(*args):
     p = subprocess.Popen([sys.executable, "-m", "dmdsm.host", "sim", "--json", *args],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=interruptible)
     ports = json.loads(p.stdout.readline())
     return p, ports
 

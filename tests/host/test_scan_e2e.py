@@ -150,9 +150,11 @@ def test_interrupted_scan_resumes_to_the_same_file(emulator, tmp_path, sig):
     stop_at = int(np.random.default_rng(int(sig)).integers(3, whole.n_points - 3))
     path = db / "scans" / "cut.h5"
     proc = subprocess.Popen(_scan_cmd(emu, tmp_path, db, "cut"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 300
-    while _points_done(path) < stop_at and time.monotonic() < deadline:
+    while _points_done(path) < stop_at and time.monotonic() < deadline \
+            and proc.poll() is None:
         time.sleep(0.02)
     os.kill(proc.pid, sig)
     _, err = proc.communicate(timeout=60)

@@ -2,8 +2,11 @@
 measured as `dmdsm scan` would, for classification tests and benchmarks.
 
 `python -m dmdsm.sim.dataset --out DB --points 24 --seed 0` writes DB/scans/*.h5 and the
-catalogue. Waveforms are averaged like the board does; distances come from the host's
-ranging (PointRanger) with the emulator's true t0 and c, so the files match real scans.
+catalogue. Points come in raster lines of LINE positions across the object's face at a random
+height and a table angle near 0/90/180/270 deg, as a scan plan takes them; waveforms are
+averaged like the board does; distances come from the host's ranging (PointRanger, with the
+previous point of the line for lone pulses) with the emulator's true t0 and c, so the files
+match real scans.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from .sensor import ADC_RATE_HZ, TICK_HZ
 from .signals import SensorModel, synthesize, to_adc
 
 US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
+LINE = 8  # points per raster line
 
 
 def true_setup(model: SensorModel) -> RangingSetup:
@@ -66,21 +70,29 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
         calibration_toml="", ranging_json=setup.to_json(),
         sample={"name": name, "material": material, "notes": "hil_sim dataset"},
         program_version="sim")
+    period = int(round(TICK_HZ / ADC_RATE_HZ))
+    previous = None
     for i in range(points):
-        theta = float(rng.uniform(0, 360))
-        x = float(rng.uniform(-0.35, 0.35) * w)
-        z = float(rng.uniform(0.2, 0.8) * min(h, 80.0))
+        if i % LINE == 0:  # a new raster line: one table angle and height, X across the face
+            theta = float(90 * rng.integers(4) + rng.uniform(-15, 15))  # plan angles
+            z = float(rng.uniform(0.2, 0.8) * min(h, 80.0))
+            x0 = float(rng.uniform(-0.4, -0.2) * w)
+            previous = None
+        x = x0 + (i % LINE) * 0.7 * w / (LINE - 1)
         front = scene.X_R + B @ np.array([x, 0.0, z]) - (radius + 8.0) * v
         hit = scene.cast(front, theta)
-        period = int(round(TICK_HZ / ADC_RATE_HZ))
         phase = int(rng.integers(1, period + 1))
         t_us = (np.arange(n_samples) / ADC_RATE_HZ + phase / TICK_HZ) * 1e6
         shots = [to_adc(synthesize(hit, model, t_us, rng, seed), model).astype(float)
                  for _ in range(average)]
         wave = np.rint(np.mean(shots, axis=0)).astype(np.uint16)
-        r = ranger(wave, phase, 0)
+        r = ranger(wave, phase, 0, previous)
+        found = {m: val for m, val in r.items() if np.isfinite(val[0])}
+        previous = (next(iter(found.values()))[0] if found else np.nan,  # as run_scan does
+                    {m: val[1] for m, val in found.items()})
         writer.append(wave, stage_position_mm=front.tolist(), theta_deg=theta, level=0,
-                      column=i, angle_index=0, received=True, attempts=1, n_average=average,
+                      column=i % LINE, angle_index=i // LINE, received=True, attempts=1,
+                      n_average=average,
                       timestamp=i, trigger_phase=phase, distance_oa_mm=r["oa"][0],
                       distance_us_mm=r["us"][0], snr_oa_db=r["oa"][1], snr_us_db=r["us"][1],
                       phase_time_s=np.zeros(len(PHASES)), host_time=0.0, point_index=i)

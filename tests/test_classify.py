@@ -1,18 +1,28 @@
 """Material classification on a small hil_sim database (seven materials, two objects each):
-trains and evaluates end to end, a label shuffle drops to chance, provenance is checked."""
+trains and evaluates end to end, a label shuffle drops to chance, provenance is checked,
+one-modality variants, and live prediction through the emulated sensor."""
 
 import json
 import shutil
+import threading
 
 import h5py
 import numpy as np
 import pytest
 
+from dmdsm.host import classify
 from dmdsm.host.classify import ClassifyError, assemble, evaluate_random, per_class_accuracy
 from dmdsm.host.cli import main
-from dmdsm.sim.dataset import make_database
+from dmdsm.host.stage import StageClient
+from dmdsm.sim.dataset import make_database, true_setup
+from dmdsm.sim.objects import bounding_size, household
+from dmdsm.sim.pty_server import PtyServer
+from dmdsm.sim.runner import SimConfig, Simulation
+from dmdsm.sim.scene import TABLE_I_V, TABLE_I_XR
+from dmdsm.sim.signals import SensorModel
 
 ARTIFICIAL = ("aluminium", "foam", "glass", "paper", "plastic", "steel")
+DISTINCT = ("aluminium", "foam", "glass", "paper", "steel")  # the emulator's plastic ~ apple
 
 
 @pytest.fixture(scope="module")
@@ -20,6 +30,13 @@ def db(tmp_path_factory):
     d = tmp_path_factory.mktemp("db")
     make_database(d, points=24, seed=1)
     return d
+
+
+@pytest.fixture(scope="module")
+def model(db, tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "m.model"
+    assert main(["classify", "train", "--db", str(db), "-o", str(path), "--json"]) == 0
+    return path
 
 
 def run(capsys, *args):
@@ -36,15 +53,33 @@ def test_pipeline_trains_and_evaluates_end_to_end(db, tmp_path, capsys):
     assert res["objects"] == 14
     acc = res["classifiers"]["minirocket"]
     assert set(acc["random"]) == set(ARTIFICIAL) | {"apple"}
-    for m in ARTIFICIAL:  # distinct materials are told apart in both protocols
+    for m in ARTIFICIAL:  # told apart when each object has been seen
         assert acc["random"][m] >= 0.8, (m, acc)
-        assert acc["loo"][m] >= 0.6, (m, acc)
+    for m in DISTINCT:  # ... and on objects never seen
+        assert acc["loo"][m] >= 0.8, (m, acc)
     assert (tmp_path / "confusion_minirocket_random.png").stat().st_size > 5000
     cm = np.loadtxt(tmp_path / "confusion_minirocket_loo.csv", delimiter=",")
     assert cm.shape == (7, 7) and cm.sum() > 100
+    # the emulator's apple is plastic-like by design: unseen objects of the two are confused
+    # with each other, not with the rest
+    pair = [sorted(acc["loo"]).index(m) for m in ("apple", "plastic")]
+    assert cm[np.ix_(pair, pair)].sum() >= 0.85 * cm[pair].sum()
 
 
-def test_boss_with_the_papers_alphabet_runs_on_the_same_data(db):
+def test_one_modality_sees_only_its_materials_and_prints_the_table(db, tmp_path, capsys):
+    rc, out, err = run(capsys, "classify", "evaluate", "--db", str(db), "--classifiers",
+                       "minirocket", "--modality", "oa", "--trials", "2", "--no-loo",
+                       "--out", str(tmp_path))
+    assert rc == 0, err
+    table = out[out.index("true/pred"):].splitlines()
+    rows = {line.split()[0]: line.split()[1:] for line in table[1:8]}
+    assert rows["glass"] == ["-"] * 7 and rows["steel"] == ["-"] * 7  # no OA on them
+    assert float(rows["foam"][2]) >= 80.0  # foam's diagonal cell, percent
+    assert (tmp_path / "confusion_minirocket_random_oa.csv").exists()
+
+
+def test_boss_with_the_papers_alphabet_runs_on_the_same_data(db, monkeypatch):
+    monkeypatch.setattr(classify, "BOSS_PER_CLASS", 12)  # its search costs ~n^2
     ds = assemble(sorted((db / "scans").glob("*.h5")))
     keep = np.isin(ds.y, ["foam", "glass", "aluminium"])
     sub = ds.subset(np.nonzero(keep)[0])
@@ -65,12 +100,7 @@ def test_label_shuffle_drops_accuracy_to_chance(db):
     assert shuffled <= chance + 0.12, (shuffled, chance)
 
 
-def test_model_file_predicts_and_refuses_other_sample_rates(db, tmp_path, capsys):
-    model = tmp_path / "m.model"
-    rc, out, err = run(capsys, "classify", "train", "--db", str(db), "--classifier",
-                       "minirocket", "-o", str(model), "--json")
-    assert rc == 0, err
-    assert json.loads(out)["points"] > 200
+def test_model_file_predicts_and_refuses_other_sample_rates(db, model, tmp_path, capsys):
     scan = next((db / "scans").glob("foam_block-*.h5"))
     rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--scan",
                        str(scan), "--json")
@@ -85,10 +115,22 @@ def test_model_file_predicts_and_refuses_other_sample_rates(db, tmp_path, capsys
                        str(other))
     assert rc == 2 and "trained on 3582090 Hz data" in err and "retrain" in err
     assert len(err.strip().splitlines()) == 1
+    rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--scan",
+                       str(scan), "--window", "96")
+    assert rc == 2 and "trained on 128-sample windows, not 96" in err
     (tmp_path / "junk.model").write_bytes(b"not a model")
     rc, out, err = run(capsys, "classify", "predict", "--model",
                        str(tmp_path / "junk.model"), "--scan", str(scan))
-    assert rc == 2 and "not a dmdsm classifier model" in err
+    assert rc == 2 and "not a readable dmdsm classifier model" in err
+
+
+def test_live_prediction_refuses_a_ranging_setup_at_another_rate(model, tmp_path, capsys):
+    setup = true_setup(SensorModel())
+    setup.fs_hz /= 2
+    setup.save(tmp_path / "ranging.json")
+    rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--sensor",
+                       str(tmp_path / "no-such-port"), "--ranging", str(tmp_path / "ranging.json"))
+    assert rc == 2 and "these waveforms are 1791045 Hz" in err  # refused before the port
 
 
 def test_mixed_sample_rates_are_refused(db, tmp_path):
@@ -99,3 +141,32 @@ def test_mixed_sample_rates_are_refused(db, tmp_path):
         f["/entry/instrument/sensor"].attrs["adc_rate_hz"] = 2_000_000
     with pytest.raises(ClassifyError, match="one database per sample rate"):
         assemble([scans[0], other])
+
+
+@pytest.mark.parametrize("name", ["glass_jar", "foam_block", "paper_cup"])
+def test_live_prediction_through_the_emulated_sensor(name, model, tmp_path, capsys):
+    """glass: US alone, foam: OA alone (lone pulses of unknown modality), paper: both."""
+    server = PtyServer(Simulation(SimConfig(scene=name, seed=5)), speed=50.0)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        true_setup(SensorModel()).save(tmp_path / "ranging.json")
+        w, d, h = bounding_size(household(name)[0])
+        v = TABLE_I_V / np.linalg.norm(TABLE_I_V)
+        at = TABLE_I_XR + np.array([0.0, 0.0, 0.4 * h]) - (max(w, d) / 2 + 8) * v
+        stage = StageClient(server.ports["stage"].name_for_host)
+        stage.home()
+        stage.move(x=at[0], y=at[1], z=at[2])
+        stage.wait()
+        stage.close()
+        rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--sensor",
+                           server.ports["sensor"].name_for_host, "--ranging",
+                           str(tmp_path / "ranging.json"), "--shots", "6", "--json")
+    finally:
+        server.stop()
+        thread.join(5)
+    assert rc == 0, err
+    got = json.loads(out)
+    material = household(name)[0].material
+    assert got["material"] == material and got["confidence"] > 0.6, got
+    assert got["points"] >= 4

@@ -23,6 +23,7 @@ import numpy as np
 from dmdsm.host.cli import main as dmdsm
 from dmdsm.host.db_cmd import scan_points, validate_block
 from dmdsm.host.range_cmd import calibrate_range
+from dmdsm.host.scan_plan import ScanPlan
 from dmdsm.host.scandb import read_scan
 from dmdsm.host.sensor import SensorClient
 from dmdsm.host.stage import StageClient
@@ -30,19 +31,6 @@ from dmdsm.sim.pty_server import PtyServer
 from dmdsm.sim.runner import SimConfig, Simulation
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
-PLAN = """[sample]
-object_id = "aluminium_block"
-material = "aluminium"
-[object]
-radius_mm = 30.0
-height_mm = 40.0
-[scan]
-levels_mm = {levels}
-angles_deg = [0.0, 90.0, 180.0, 270.0]
-half_width_mm = 32.0
-step_mm = {step}
-average = 16
-"""
 
 
 def run(speed: float, levels: str, step: float, out: Path) -> dict:
@@ -67,7 +55,9 @@ def run(speed: float, levels: str, step: float, out: Path) -> dict:
         (out / "cal.toml").write_text(
             f"[calibration]\nv = {(s.v / np.linalg.norm(s.v)).tolist()}\n"
             f"n = {(s.n / np.linalg.norm(s.n)).tolist()}\nX_R = {s.X_R.tolist()}\n")
-        (out / "plan.toml").write_text(PLAN.format(levels=levels, step=step))
+        plan = ScanPlan("aluminium_block", "aluminium", radius_mm=30.0, height_mm=40.0,
+                        levels_mm=json.loads(levels), half_width_mm=32.0, step_mm=step)
+        (out / "plan.toml").write_text(plan.to_toml())
         sim_t0 = sim.t
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf):

@@ -79,5 +79,52 @@ def main(trials: int = 200) -> int:
     return 0 if ok else 1
 
 
+def emulator_seeds(n_seeds: int) -> int:
+    """The rig procedure in the emulator's physics over n_seeds: rms error over the median
+    reported std per coordinate, worst |error|/std, and X_R along the beam per correction."""
+    from test_calibration_sim import COORDS, as_raw, errors
+
+    from dmdsm.host.calibration_io import center_points
+    from dmdsm.sim.rig_data import record
+
+    errs, sds, along = [], [], {"spot model": [], "none": [], "constant radius": []}
+    t0 = time.perf_counter()
+    for seed in range(n_seeds):
+        rows, truth = record(seed)
+        raw = as_raw(rows)
+        r = solve(center_points(raw))
+        e, s = errors(r, truth)
+        errs.append(e)
+        sds.append(s)
+        v = np.array(truth["v"])
+        along["spot model"].append((r.X_R - truth["X_R"]) @ v)
+        plain = center_points(raw, radius_mm=0.0)
+        along["none"].append((solve(plain).X_R - truth["X_R"]) @ v)
+        plain.filament_radius_mm = 0.25
+        along["constant radius"].append((solve(plain).X_R - truth["X_R"]) @ v)
+    errs, sds = np.array(errs), np.array(sds)
+    print(f"\nemulator physics, {n_seeds} seeds ({time.perf_counter() - t0:.0f} s): "
+          f"rig procedure -> center points -> MLE")
+    print(f"{'coordinate':>10} {'rms error':>10} {'median std':>11} {'ratio':>6} "
+          f"{'max |z|':>8}")
+    ratio = np.sqrt(np.mean(errs ** 2, axis=0)) / np.median(sds, axis=0)
+    for j, label in enumerate(COORDS):
+        print(f"{label:>10} {np.sqrt(np.mean(errs[:, j] ** 2)):>10.2e} "
+              f"{np.median(sds[:, j]):>11.2e} {ratio[j]:>6.2f} "
+              f"{np.max(np.abs(errs[:, j] / sds[:, j])):>8.1f}")
+    print("X_R along the beam (mm), mean +- std over seeds, by edge-depth correction:")
+    for k, a in along.items():
+        print(f"  {k:>16}: {np.mean(a):+.4f} +- {np.std(a):.4f}")
+    return 0 if ((ratio > 0.5) & (ratio < 1.6)).all() else 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=200, help="Monte Carlo trials (synthetic)")
+    ap.add_argument("--seeds", type=int, default=40,
+                    help="emulator seeds for the end-to-end check (0: skip)")
+    a = ap.parse_args()
+    rc = main(a.trials)
+    sys.exit(rc or (emulator_seeds(a.seeds) if a.seeds else 0))

@@ -137,8 +137,9 @@ class SceneObject:
 
 @dataclass
 class Hit:
-    """What one laser shot sees: mean distance of the hit rays (mm), overlap 0..1, cos of
-    the incidence angle, the material hit (or None) and the per-ray distances."""
+    """What one laser shot sees, nearest return first: mean distance of its rays (mm), their
+    share of the spot 0..1, cos of the incidence angle, the material hit (or None); deeper
+    returns of the same object in `later`."""
 
     d: float
     overlap: float
@@ -146,8 +147,10 @@ class Hit:
     material: str | None
     obj: str | None
     local: np.ndarray | None = None  # mean hit point in the object's own frame (mm)
+    later: list[Hit] = field(default_factory=list)  # returns from deeper in the spot
 
 
+RETURN_MM = 0.3  # depth spread within the spot that still arrives as one pulse (mm)
 SPOT = np.array([[0.0, 0.0]] + [[np.cos(a), np.sin(a)] for a in np.arange(6) * np.pi / 3]
                 + [[2 * np.cos(a), 2 * np.sin(a)] for a in (np.arange(12) + 0.5) * np.pi / 6]) / 2
 
@@ -191,6 +194,16 @@ class Scene:
             return Hit(np.inf, 0.0, 0.0, None, None)
         k = np.bincount(owner[hit]).argmax()
         sel = hit & (owner == k)
-        cos_i = float(np.clip(np.mean(np.abs(normals[sel] @ v)), 0, 1))
-        return Hit(float(best[sel].mean()), float(sel.mean()), cos_i,
-                   self.objects[k].material, self.objects[k].name, local[sel].mean(axis=0))
+        # rays whose distances lie within RETURN_MM of each other make one return at their
+        # mean distance; a spot spread over depth (a tip seen with its grazing side, a face
+        # and the one behind it) makes separate returns, nearest first
+        rank = np.floor((best - best[sel].min()) / RETURN_MM)
+        returns = []
+        for b in np.unique(rank[sel]):
+            r = sel & (rank == b)
+            cos_i = float(np.clip(np.mean(np.abs(normals[r] @ v)), 0, 1))
+            returns.append(Hit(float(best[r].mean()), float(r.mean()), cos_i,
+                               self.objects[k].material, self.objects[k].name,
+                               local[r].mean(axis=0)))
+        returns[0].later = returns[1:]
+        return returns[0]

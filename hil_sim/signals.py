@@ -117,35 +117,43 @@ def synthesize(hit: Hit, model: SensorModel, t_us: np.ndarray, rng: np.random.Ge
     """Analog waveform (counts about 0) at sample times t_us after the laser edge."""
     x = model.bang_amp * _pulse(t_us - model.t0_us_us, model.us_fc_mhz, model.us_bw)
     x *= np.exp(-np.clip(t_us - model.t0_us_us, 0, None) / model.bang_decay_us)
-    mat = model.materials.get(hit.material) if hit.material else None
-    if mat is not None and hit.overlap > 0:
-        spread = 1.0 / (1.0 + hit.d / model.spread_mm) * (1 + 10 / model.spread_mm)
-        var = mat.variability
-        c = model.c_mm_us
-        if mat.oa:
-            d = hit.d + roughness(hit, mat.roughness_oa_mm, "oa", seed)
-            amp = mat.oa_amp * hit.overlap * spread * np.sqrt(hit.cos_incidence)
-            amp *= rng.lognormal(0, var)
-            fc = mat.oa_fc_mhz * (1 + rng.normal(0, var / 3))
-            x += amp * _pulse(t_us - (model.t0_oa_us + d / c), fc, mat.oa_bw)
-        if mat.us:
-            d = hit.d + roughness(hit, mat.roughness_us_mm, "us", seed)
-            angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
-            amp = mat.us_amp * hit.overlap * spread ** 2
-            amp *= np.exp(-(angle / model.us_angle_deg) ** 2)
-            amp *= rng.lognormal(0, var)
-            fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, var / 3))
-            tau = t_us - (model.t0_us_us + 2 * d / c)
-            echo = _pulse(tau, fc, model.us_bw)
-            if mat.ring_gain:
-                ring = np.where(tau > 0, np.exp(-tau / mat.ring_decay_us), 0.0)
-                echo += mat.ring_gain * (1 + rng.normal(0, var)) * ring * np.sin(
-                    2 * np.pi * mat.ring_fc_mhz * tau)
-            x += amp * echo
+    for ret in (hit, *hit.later):
+        _add_return(x, ret, model, t_us, rng, seed)
     x += rng.normal(0, model.noise_counts, t_us.shape)
     if rng.random() < model.spike_prob:
         x[rng.integers(0, len(x))] += model.spike_amp * rng.choice([-1, 1])
     return x
+
+
+def _add_return(x: np.ndarray, hit: Hit, model: SensorModel, t_us: np.ndarray,
+                rng: np.random.Generator, seed: int) -> None:
+    """Add one return's OA pulse and US echo to x (counts)."""
+    mat = model.materials.get(hit.material) if hit.material else None
+    if mat is None or hit.overlap <= 0:
+        return
+    spread = 1.0 / (1.0 + hit.d / model.spread_mm) * (1 + 10 / model.spread_mm)
+    var = mat.variability
+    c = model.c_mm_us
+    if mat.oa:
+        d = hit.d + roughness(hit, mat.roughness_oa_mm, "oa", seed)
+        amp = mat.oa_amp * hit.overlap * spread * np.sqrt(hit.cos_incidence)
+        amp *= rng.lognormal(0, var)
+        fc = mat.oa_fc_mhz * (1 + rng.normal(0, var / 3))
+        x += amp * _pulse(t_us - (model.t0_oa_us + d / c), fc, mat.oa_bw)
+    if mat.us:
+        d = hit.d + roughness(hit, mat.roughness_us_mm, "us", seed)
+        angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
+        amp = mat.us_amp * hit.overlap * spread ** 2
+        amp *= np.exp(-(angle / model.us_angle_deg) ** 2)
+        amp *= rng.lognormal(0, var)
+        fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, var / 3))
+        tau = t_us - (model.t0_us_us + 2 * d / c)
+        echo = _pulse(tau, fc, model.us_bw)
+        if mat.ring_gain:
+            ring = np.where(tau > 0, np.exp(-tau / mat.ring_decay_us), 0.0)
+            echo += mat.ring_gain * (1 + rng.normal(0, var)) * ring * np.sin(
+                2 * np.pi * mat.ring_fc_mhz * tau)
+        x += amp * echo
 
 
 def to_adc(x: np.ndarray, model: SensorModel) -> np.ndarray:

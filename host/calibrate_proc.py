@@ -29,7 +29,7 @@ class RigPlan:
     shots: int = 1                          # waveforms per raw point
     average: int = 4                        # shots averaged on board per waveform
     modality: str = "oa"
-    depth_range_mm: tuple[float, float] = (2.0, 14.0)  # where echoes are searched
+    depth_range_mm: tuple[float, float] = (2.0, 25.0)  # where echoes are searched
 
 
 def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
@@ -60,9 +60,12 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
     sensor.configure(n_samples=1024, n_average=plan.average, pretrigger=0,
                      trigger_timeout_ms=2000)
     mf = MatchedFilter(setup.templates[m], 1024)
-    c = setup.cals[m].c_mm_s
+    c, t0 = setup.cals[m].c_mm_s, setup.cals[m].t0_s
     lo, hi = plan.depth_range_mm
-    gate = (gate_for(lo, m, setup.fs_hz, c, 1024)[0], gate_for(hi, m, setup.fs_hz, c, 1024)[1])
+    # gated with the calibrated t0: the transmitter's bang must not pass for a near echo
+    gate = (gate_for(lo, m, setup.fs_hz, c, 1024, t0)[0],
+            min(gate_for(hi, m, setup.fs_hz, c, 1024, t0)[1],
+                1024 - len(mf.t.pulse) + int(mf.t.center)))  # no circular wrap
     rows: list[dict] = []
     if step == "tip":
         return _scan_tips(stage, sensor, mf, setup, plan, gate, progress)

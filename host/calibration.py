@@ -53,6 +53,30 @@ def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return unit(u + basis @ delta)
 
 
+def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: float
+                   ) -> np.ndarray:
+    """How far in front of a filament's axis the ranged surface lies (mm), for a beam whose
+    centre passes offset_mm beside the axis.
+
+    Ranging reports the mean distance of the part of the spot (a uniform disk of
+    spot_radius_mm) that lands on the filament (radius_mm); there the front surface is
+    sqrt(r^2 - s^2) in front of the axis at lateral position s. Adding this to a raw depth
+    puts the point on the axis: a constant `radius_mm` would leave it ~0.05 mm short."""
+    u = np.atleast_1d(np.asarray(offset_mm, float))
+    r, rho = float(radius_mm), float(spot_radius_mm)
+    if r <= 0:
+        return np.zeros_like(u)
+    if rho <= 0:
+        return np.sqrt(np.maximum(r * r - u * u, 0.0))
+    t = (np.arange(512) + 0.5) / 256 - 1  # across the spot, in spot radii (midpoints)
+    s = u[:, None] + rho * t[None, :]
+    w = np.sqrt(1 - t * t)[None, :] * (np.abs(s) < r)  # chord length of the disk at s
+    depth = np.sqrt(np.maximum(r * r - s * s, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (w * depth).sum(axis=1) / w.sum(axis=1)
+    return np.where(w.sum(axis=1) > 0, out, 0.0)
+
+
 # ---------------------------------------------------------------- closed-form estimates
 def estimate_v(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """v and the tip point from tip center points of >= 2 depths (eq. 2).
@@ -172,6 +196,7 @@ class CalibrationResult:
     cov: np.ndarray | None = None
     rms_residual_mm: float = 0.0
     svd: dict[str, np.ndarray] = field(default_factory=dict)
+    edge_depth_scatter_mm: float = 0.0  # the surface's share of an edge depth's std
 
 
 def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
@@ -210,7 +235,11 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         th = p[13:13 + F]
         return v, n, xr, q, pt, tip, th
 
-    def residuals(p: np.ndarray, whiten: bool = True) -> np.ndarray:
+    extra = [0.0]  # variance (mm^2) added to each edge depth: the surface's share, below
+
+    def residuals(p: np.ndarray, whiten: bool = True, depth: bool = False) -> np.ndarray:
+        """Whitened residuals; depth=True: the edges' unwhitened residuals along the beam
+        and the variances their covariances give them (without `extra`)."""
         v, n, xr, q, pt, tip, th = unpack(p)
         # a tip point's noise: its stage reading covariance plus its depth variance along v
         X = data.tip_S + data.tip_d[:, None] * v - tip
@@ -218,7 +247,7 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
             cov = tip_cS + tip_vd[:, None, None] * np.outer(v, v)
             W = np.linalg.cholesky(np.linalg.inv(cov))  # (k, 3, 3)
             X = np.einsum("ki,kij->kj", X, W)
-        r = [X.ravel()]
+        r, dvar = [X.ravel()], []
         for i, f in enumerate(frames):
             sel = data.edge_frame == f
             X = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v
@@ -226,20 +255,42 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
             li = R @ q
             pi = xr + R @ (pt - xr)
             rel = X - pi
-            perp = (rel - np.outer(rel @ li, li)) @ tangent_basis(li)  # across the line
+            B = tangent_basis(li)
+            perp = (rel - np.outer(rel @ li, li)) @ B  # across the line
+            cov = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B) + \
+                edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+            if depth:
+                e = unit(B.T @ v)
+                r.append(perp @ e)
+                dvar.append(np.einsum("i,kij,j->k", e, cov, e))
+                continue
             if whiten:
-                B = tangent_basis(li)
-                cov = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B) + \
-                    edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+                cov = cov + extra[0] * np.outer(B.T @ v, B.T @ v)
                 W = np.linalg.cholesky(np.linalg.inv(cov))
                 perp = np.einsum("ki,kij->kj", perp, W)
             r.append(perp.ravel())
+        if depth:
+            return np.concatenate(r[1:]), np.concatenate(dvar)
         if whiten:
             r.append((th - np.asarray(thetas)) / data.sigma_theta_deg)
         return np.concatenate(r)
 
     p_init = np.concatenate([np.zeros(4), xr0[:2], np.zeros(4), tip0, thetas])
-    sol = least_squares(residuals, p_init, method="lm", x_scale="jac")
+    # The points of one sweep share the patch of surface under the spot, so an edge center
+    # point's depth scatters more than the sweep's spread / n says (rough graphite: ~0.05 mm).
+    # That share is one variance for all edge depths, estimated from the depth residuals
+    # about the fitted lines (4 parameters act along the beam: line offset and tilt, n, X_R)
+    # and the fit repeated with it: the covariances then match the scatter.
+    for _ in range(6):
+        sol = least_squares(residuals, p_init, method="lm", x_scale="jac")
+        p_init = sol.x
+        r_d, var_d = residuals(sol.x, depth=True)
+        if len(r_d) <= 4:
+            break
+        new = max(0.0, float(np.sum(r_d ** 2) / (len(r_d) - 4) - np.mean(var_d)))
+        if abs(new - extra[0]) <= 0.02 * max(new, extra[0]) + 1e-14:
+            break
+        extra[0] = new
     v, n, xr, *_ = unpack(sol.x)
     J = sol.jac
     cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
@@ -252,4 +303,4 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
     rms_mm = float(np.sqrt(np.mean(residuals(sol.x, whiten=False) ** 2)))
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
-                             cov, rms_mm, svd)
+                             cov, rms_mm, svd, float(np.sqrt(extra[0])))

@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .calibration import CalibrationData, CalibrationError, CalibrationResult, solve
+from .calibration import (
+    CalibrationData,
+    CalibrationError,
+    CalibrationResult,
+    front_depth_mm,
+    solve,
+)
 
 COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
            "amplitude", "modality")
@@ -46,9 +52,12 @@ def read_raw(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float
+def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
+            radius_mm: float = 0.0, spot_radius_mm: float = 0.0
             ) -> tuple[np.ndarray, float, np.ndarray, float] | None:
-    """Center point of raw points above threshold x max amplitude (§IV-C)."""
+    """Center point of raw points above threshold x max amplitude (§IV-C). With a filament
+    radius, the points are a sweep across a filament: each depth is moved from the ranged
+    front surface onto the axis (front_depth_mm of its offset from the sweep's centre)."""
     ok = np.isfinite(d) & np.isfinite(amp)
     if not ok.any():
         return None
@@ -57,14 +66,19 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float
     if n < 1:
         return None
     Sk, dk = S[keep], d[keep]
+    if radius_mm > 0:
+        _, _, vt = np.linalg.svd(S - S.mean(axis=0))  # the sweep direction
+        dk = dk + front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm)
     cov = np.cov(Sk.T) / n if n > 1 else np.zeros((3, 3))
     var = float(np.var(dk, ddof=1) / n) if n > 1 else 0.0
     return Sk.mean(axis=0), float(dk.mean()), cov, var
 
 
 def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: float = 0.5,
-                  radius_mm: float = 0.25, sigma_theta_deg: float = 0.01) -> CalibrationData:
-    """Tip center points per tip frame; edge center points per scan line of each edge frame."""
+                  radius_mm: float = 0.25, sigma_theta_deg: float = 0.01,
+                  spot_radius_mm: float = 0.25) -> CalibrationData:
+    """Tip center points per tip frame; edge center points per scan line of each edge frame,
+    on the filament's axis (radius_mm: the filament's, spot_radius_mm: the laser spot's)."""
     sel = raw["modality"] == modality
     S = np.column_stack([raw["sx_mm"], raw["sy_mm"], raw["sz_mm"]])
     tips, edges = [], []
@@ -80,7 +94,8 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
         thetas[i] = float(np.nanmedian(raw["theta_deg"][fm]))
         for ln in np.unique(raw["line"][fm]):
             m = fm & (raw["line"] == ln)
-            c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
+            c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold, radius_mm,
+                        spot_radius_mm)
             if c is not None:
                 edges.append((i, *c))
     if len(tips) < 2:
@@ -92,7 +107,7 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
         np.array([t[0] for t in tips]), np.array([t[1] for t in tips]),
         np.array([e[1] for e in edges]), np.array([e[2] for e in edges]),
         np.array([e[0] for e in edges]), np.array([thetas[i] for i in range(len(thetas))]),
-        sigma_theta_deg=sigma_theta_deg, filament_radius_mm=radius_mm,
+        sigma_theta_deg=sigma_theta_deg,
         tip_cov_S=np.array([t[2] for t in tips]), tip_var_d=np.array([t[3] for t in tips]),
         edge_cov_S=np.array([e[3] for e in edges]), edge_var_d=np.array([e[4] for e in edges]))
 
@@ -173,6 +188,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threshold", type=float, default=0.5,
                    help="keep raw points above this fraction of the frame's max amplitude")
     p.add_argument("--radius", type=float, default=0.25, help="filament radius (mm)")
+    p.add_argument("--spot-radius", type=float, default=0.25,
+                   help="laser spot radius at the filament (mm): where on the filament's "
+                        "front the ranged depth lies (docs/calibration.md)")
     p.add_argument("-o", "--output", type=Path, default=Path("calibration.toml"))
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_calibrate)
@@ -234,7 +252,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     source = args.from_data or args.data
     try:
         data = center_points(read_raw(source), args.modality, args.threshold,
-                             args.radius)
+                             args.radius, spot_radius_mm=args.spot_radius)
         r = solve(data)
     except CalibrationError as e:
         raise CliError(str(e)) from None

@@ -17,10 +17,13 @@ T0_MAX_S = 10e-6  # prior: trigger-to-emission delays are below 10 us
 K = {"oa": 1.0, "us": 2.0}  # one way, round trip
 
 
-def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int
-             ) -> tuple[int, int]:
-    """Samples where an echo from d mm can be, for 0 <= t0 <= T0_MAX_S."""
+def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int,
+             t0_s: float | None = None) -> tuple[int, int]:
+    """Samples where an echo from d mm can be: for any 0 <= t0 <= T0_MAX_S, or, with a
+    calibrated t0_s (s), within a few samples of t0_s + k d / c."""
     t = K[modality] * d_mm / c_mm_s
+    if t0_s is not None:
+        return max(0, int((t0_s + t) * fs_hz) - 2), min(n, int((t0_s + t) * fs_hz) + 3)
     return max(0, int(t * fs_hz) - 2), min(n, int((t + T0_MAX_S) * fs_hz) + 16)
 
 

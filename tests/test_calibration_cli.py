@@ -8,9 +8,12 @@ import sys
 import numpy as np
 from test_calibration import XR, N, V, synth
 
+from dmdsm.host.calibration import front_depth_mm
+
 
 def write_raw(path, data, radius=0.25, drop=None):
-    """Raw raster points around each synthetic center point (symmetric, so exact centers)."""
+    """Raw raster points around each synthetic center point (symmetric, so exact centers);
+    an edge sweep's depths are the spot-averaged front surface of the filament."""
     cols = ["step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
             "amplitude", "modality", "extra"]
     if drop:
@@ -26,8 +29,10 @@ def write_raw(path, data, radius=0.25, drop=None):
                                  modality="oa", extra="x"))
     for j, (S, d, f) in enumerate(zip(data.edge_S, data.edge_d, data.edge_frame)):
         for ox in offs:
+            front = front_depth_mm(ox, radius, 0.25)[0]
             rows.append(dict(step="edge", frame=10 + f, line=j, theta_deg=data.theta_deg[f],
-                             sx_mm=S[0] + ox, sy_mm=S[1], sz_mm=S[2], d_mm=d,
+                             sx_mm=S[0] + ox, sy_mm=S[1], sz_mm=S[2],
+                             d_mm=d + radius - front,
                              amplitude=np.exp(-ox ** 2 / 0.02), modality="oa", extra="y"))
         rows.append(dict(step="edge", frame=10 + f, line=j, theta_deg=data.theta_deg[f],
                          sx_mm=S[0], sy_mm=S[1], sz_mm=S[2], d_mm="nan", amplitude=0.0,

@@ -11,6 +11,7 @@ import numpy as np
 from .range_cal import RangingSetup
 from .range_cmd import gate_for
 from .ranging import MatchedFilter
+from .safety import TABLE_I
 
 
 @dataclass
@@ -88,8 +89,8 @@ def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingS
                plan: RigPlan, gate: tuple[int, int],
                progress: Callable[[int, int], None] | None) -> list[dict]:
     """Tip frames, each raster centred where the tip should be: the tip drifts across the
-    raster by v_x, v_z per mm of depth, so each frame's centre is extrapolated from the
-    centre points of the frames before it."""
+    raster by v_x / v_y, v_z / v_y per mm of Y step, so the second frame's centre follows the
+    paper's v and later ones are extrapolated from the centre points of the frames before."""
     offs = np.arange(-plan.tip_half_mm, plan.tip_half_mm + 1e-9, plan.tip_step_mm)
     total = len(plan.tip_depth_steps) * len(offs) ** 2
     rows: list[dict] = []
@@ -100,8 +101,10 @@ def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingS
             step = (centers[-1] - centers[-2]) / (plan.tip_depth_steps[f - 1]
                                                  - plan.tip_depth_steps[f - 2])
             cx, cz = centers[-1] + step * (dy - plan.tip_depth_steps[f - 1])
-        elif centers:
-            cx, cz = centers[-1]
+        elif centers:  # one frame so far: the drift the paper's v predicts
+            v = np.asarray(TABLE_I["v"], float)
+            dd = plan.tip_depth_steps[f] - plan.tip_depth_steps[f - 1]
+            cx, cz = centers[-1] - dd * np.array([v[0], v[2]]) / v[1]
         else:
             cx, cz = x0, z0
         frame_rows = []
@@ -128,7 +131,6 @@ def edge_start_at(plan: RigPlan, theta_deg: float, nominal_d_mm: float = 6.0
     point seen from edge_start, turned about the axis (the paper's n, X_R until calibrated;
     the sweep width covers their error), backed off along v."""
     from .calibration import rodrigues
-    from .safety import TABLE_I
 
     v, n, xr = (np.asarray(TABLE_I[k], float) for k in ("v", "n", "X_R"))
     v = v / np.linalg.norm(v)

@@ -197,6 +197,7 @@ class CalibrationResult:
     rms_residual_mm: float = 0.0
     svd: dict[str, np.ndarray] = field(default_factory=dict)
     edge_depth_scatter_mm: float = 0.0  # the surface's share of an edge depth's std
+    tip_depth_scatter_mm: float = 0.0   # the ranging's share of a tip depth's std
 
 
 def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
@@ -235,16 +236,19 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         th = p[13:13 + F]
         return v, n, xr, q, pt, tip, th
 
-    extra = [0.0]  # variance (mm^2) added to each edge depth: the surface's share, below
+    extra = [0.0, 0.0]  # variances (mm^2) added to each tip and edge depth: see below
 
     def residuals(p: np.ndarray, whiten: bool = True, depth: bool = False) -> np.ndarray:
-        """Whitened residuals; depth=True: the edges' unwhitened residuals along the beam
-        and the variances their covariances give them (without `extra`)."""
+        """Whitened residuals; depth=True: the tips' and the edges' unwhitened residuals
+        along the beam with the variances their covariances give them (without `extra`)."""
         v, n, xr, q, pt, tip, th = unpack(p)
         # a tip point's noise: its stage reading covariance plus its depth variance along v
         X = data.tip_S + data.tip_d[:, None] * v - tip
-        if whiten:
-            cov = tip_cS + tip_vd[:, None, None] * np.outer(v, v)
+        cov = tip_cS + tip_vd[:, None, None] * np.outer(v, v)
+        if depth:
+            out = [X @ v, np.einsum("i,kij,j->k", v, cov, v)]
+        elif whiten:
+            cov = cov + extra[0] * np.outer(v, v)
             W = np.linalg.cholesky(np.linalg.inv(cov))  # (k, 3, 3)
             X = np.einsum("ki,kij->kj", X, W)
         r, dvar = [X.ravel()], []
@@ -265,32 +269,33 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
                 dvar.append(np.einsum("i,kij,j->k", e, cov, e))
                 continue
             if whiten:
-                cov = cov + extra[0] * np.outer(B.T @ v, B.T @ v)
+                cov = cov + extra[1] * np.outer(B.T @ v, B.T @ v)
                 W = np.linalg.cholesky(np.linalg.inv(cov))
                 perp = np.einsum("ki,kij->kj", perp, W)
             r.append(perp.ravel())
         if depth:
-            return np.concatenate(r[1:]), np.concatenate(dvar)
+            return out + [np.concatenate(r[1:]), np.concatenate(dvar)]
         if whiten:
             r.append((th - np.asarray(thetas)) / data.sigma_theta_deg)
         return np.concatenate(r)
 
     p_init = np.concatenate([np.zeros(4), xr0[:2], np.zeros(4), tip0, thetas])
     # The points of one sweep share the patch of surface under the spot, so an edge center
-    # point's depth scatters more than the sweep's spread / n says (rough graphite: ~0.05 mm).
-    # That share is one variance for all edge depths, estimated from the depth residuals
-    # about the fitted lines (4 parameters act along the beam: line offset and tilt, n, X_R)
-    # and the fit repeated with it: the covariances then match the scatter.
-    for _ in range(6):
+    # point's depth scatters more than the sweep's spread / n says (rough graphite: ~0.05 mm);
+    # a tip frame's depth carries the ranging's scale and offset errors at that distance.
+    # Each is one variance for all depths of its kind, estimated from the residuals along the
+    # beam (less the parameters acting there: the tip point's depth; the edge line's offset
+    # and tilt, n, X_R) and the fit repeated with it: the covariances then match the scatter.
+    for _ in range(8):
         sol = least_squares(residuals, p_init, method="lm", x_scale="jac")
         p_init = sol.x
-        r_d, var_d = residuals(sol.x, depth=True)
-        if len(r_d) <= 4:
+        res = residuals(sol.x, depth=True)
+        new = [max(0.0, float(np.sum(r ** 2) / (len(r) - k) - np.mean(var)))
+               if len(r) > k else 0.0
+               for r, var, k in ((res[0], res[1], 1), (res[2], res[3], 4))]
+        if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)):
             break
-        new = max(0.0, float(np.sum(r_d ** 2) / (len(r_d) - 4) - np.mean(var_d)))
-        if abs(new - extra[0]) <= 0.02 * max(new, extra[0]) + 1e-14:
-            break
-        extra[0] = new
+        extra[:] = new
     v, n, xr, *_ = unpack(sol.x)
     J = sol.jac
     cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
@@ -303,4 +308,5 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
     rms_mm = float(np.sqrt(np.mean(residuals(sol.x, whiten=False) ** 2)))
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
-                             cov, rms_mm, svd, float(np.sqrt(extra[0])))
+                             cov, rms_mm, svd, float(np.sqrt(extra[1])),
+                             float(np.sqrt(extra[0])))

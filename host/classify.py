@@ -146,7 +146,8 @@ def make_classifier(name: str, seed: int = 0) -> object:
 
         from .classify_ridge import CalibratedRidge
 
-        ridge = CalibratedRidge(alphas=np.logspace(-3, 3, 10), store_cv_results=True)
+        ridge = CalibratedRidge(alphas=np.logspace(-3, 3, 10), store_cv_results=True,
+                                scoring="accuracy")
         return MiniRocketClassifier(estimator=make_pipeline(StandardScaler(with_mean=False),
                                                             ridge), random_state=seed)
     raise ClassifyError(f"unknown classifier {name!r}: use boss or minirocket")

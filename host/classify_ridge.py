@@ -11,11 +11,15 @@ SCALES = np.logspace(-1, 2.5, 36)  # softmax inverse temperatures tried
 
 
 class CalibratedRidge(RidgeClassifierCV):
-    """RidgeClassifierCV (construct with store_cv_results=True) + predict_proba."""
+    """RidgeClassifierCV + predict_proba. Construct with store_cv_results=True and a scoring
+    (e.g. "accuracy"): only then does scikit-learn keep the leave-one-out decision values;
+    without a scoring it keeps their squared errors, which say nothing about the class."""
 
     def fit(self, X: np.ndarray, y: np.ndarray, sample_weight: object = None
             ) -> CalibratedRidge:
         """Fit the ridge, then the temperature on its efficient leave-one-out values."""
+        if not self.store_cv_results or self.scoring is None:
+            raise ValueError("CalibratedRidge needs store_cv_results=True and a scoring")
         super().fit(X, y, sample_weight)
         cv = self.cv_results_[..., int(np.argmin(np.abs(np.asarray(self.alphas) - self.alpha_)))]
         self.cv_results_ = None  # (n, classes, alphas) floats: not worth pickling

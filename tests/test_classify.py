@@ -170,3 +170,23 @@ def test_live_prediction_through_the_emulated_sensor(name, model, tmp_path, caps
     material = household(name)[0].material
     assert got["material"] == material and got["confidence"] > 0.6, got
     assert got["points"] >= 4
+
+
+def test_ridge_probabilities_come_from_leave_one_out_decisions():
+    """The softmax temperature is fitted on leave-one-out decision values: probabilities
+    follow the evidence (a fit on scikit-learn's squared errors gave ~0.5 everywhere)."""
+    from dmdsm.host.classify_ridge import CalibratedRidge
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(200, 6))
+    y = np.where(X[:, 0] + 0.5 * rng.normal(size=200) > 0, "a", "b")
+    r = CalibratedRidge(alphas=np.logspace(-3, 3, 10), store_cv_results=True,
+                        scoring="accuracy").fit(X, y)
+    p = r.predict_proba(X)
+    p_true = p[np.arange(len(y)), np.searchsorted(r.classes_, y)]
+    assert (r.classes_[p.argmax(axis=1)] == r.predict(X)).all()
+    assert p_true.mean() > 0.7
+    clear = np.abs(X[:, 0]) > 2  # far from the boundary: confident
+    assert p_true[clear].min() > 0.9
+    with pytest.raises(ValueError, match="scoring"):
+        CalibratedRidge(store_cv_results=True).fit(X, y)

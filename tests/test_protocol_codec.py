@@ -54,8 +54,12 @@ def test_one_damaged_byte_costs_at_most_its_own_frame(msgs, data):
     kind = data.draw(st.sampled_from(["drop", "insert", "flip"]), label="kind")
     if kind == "insert":
         pos = data.draw(st.integers(0, len(f)), label="pos")
-        f.insert(pos, data.draw(st.integers(0, 255), label="byte"))
-        body_hit = 0 < pos < len(frames[victim])  # the new byte sits between the delimiters
+        byte = data.draw(st.integers(0, 255), label="byte")
+        f.insert(pos, byte)
+        # the new byte sits between the delimiters; a delimiter next to a delimiter only
+        # adds an empty frame and leaves the body whole
+        body_hit = 0 < pos < len(frames[victim]) and not (
+            byte == 0 and pos in (1, len(frames[victim]) - 1))
     else:
         pos = data.draw(st.integers(0, len(f) - 1), label="pos")
         body_hit = 0 < pos < len(f) - 1

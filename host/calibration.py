@@ -53,30 +53,6 @@ def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return unit(u + basis @ delta)
 
 
-def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: float
-                   ) -> np.ndarray:
-    """How far in front of a filament's axis the ranged surface lies (mm), for a beam whose
-    centre passes offset_mm beside the axis.
-
-    Ranging reports the mean distance of the part of the spot (a uniform disk of
-    spot_radius_mm) that lands on the filament (radius_mm); there the front surface is
-    sqrt(r^2 - s^2) in front of the axis at lateral position s. Adding this to a raw depth
-    puts the point on the axis: a constant `radius_mm` would leave it ~0.05 mm short."""
-    u = np.atleast_1d(np.asarray(offset_mm, float))
-    r, rho = float(radius_mm), float(spot_radius_mm)
-    if r <= 0:
-        return np.zeros_like(u)
-    if rho <= 0:
-        return np.sqrt(np.maximum(r * r - u * u, 0.0))
-    t = (np.arange(512) + 0.5) / 256 - 1  # across the spot, in spot radii (midpoints)
-    s = u[:, None] + rho * t[None, :]
-    w = np.sqrt(1 - t * t)[None, :] * (np.abs(s) < r)  # chord length of the disk at s
-    depth = np.sqrt(np.maximum(r * r - s * s, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = (w * depth).sum(axis=1) / w.sum(axis=1)
-    return np.where(w.sum(axis=1) > 0, out, 0.0)
-
-
 # ---------------------------------------------------------------- closed-form estimates
 def estimate_v(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """v and the tip point from tip center points of >= 2 depths (eq. 2).
@@ -310,3 +286,15 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
                              cov, rms_mm, svd, float(np.sqrt(extra[1])),
                              float(np.sqrt(extra[0])))
+
+
+def cramer_rao_bound(design: CalibrationData) -> np.ndarray:
+    """The Cramér-Rao bound (9x9 covariance of v, n, X_R in mm and unit-vector components)
+    for a design: noise-free center points of the true parameters, with the noise levels in
+    its sigmas / per-point covariances. It is the inverse Fisher information of the whitened
+    model at the truth, where the MLE's covariance and the bound coincide."""
+    r = solve(design)
+    if r.rms_residual_mm > 1e-6:
+        raise CalibrationError(f"a design must be noise-free center points of the true "
+                               f"parameters (rms residual {r.rms_residual_mm:.2g} mm)")
+    return r.cov

@@ -1,5 +1,5 @@
-"""Calibration data files (one row per raw point) to center points, and the result file;
-`dmdsm calibrate --from-data FILE`."""
+"""Calibration data files (one row per raw point) and the result file; `dmdsm calibrate`
+(scan a step of the procedure, or solve from a recorded file)."""
 
 from __future__ import annotations
 
@@ -12,13 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .calibration import (
-    CalibrationData,
-    CalibrationError,
-    CalibrationResult,
-    front_depth_mm,
-    solve,
-)
+from .calibration import CalibrationError, CalibrationResult, solve
+from .center_points import center_points
 
 COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
            "amplitude", "modality")
@@ -52,71 +47,12 @@ def read_raw(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
-            radius_mm: float = 0.0, spot_radius_mm: float = 0.0
-            ) -> tuple[np.ndarray, float, np.ndarray, float] | None:
-    """Center point of raw points above threshold x max amplitude (§IV-C). With a filament
-    radius, the points are a sweep across a filament: each depth is moved from the ranged
-    front surface onto the axis (front_depth_mm of its offset from the sweep's centre)."""
-    ok = np.isfinite(d) & np.isfinite(amp)
-    if not ok.any():
-        return None
-    keep = ok & (amp >= threshold * np.nanmax(amp[ok]))
-    n = int(keep.sum())
-    if n < 1:
-        return None
-    Sk, dk = S[keep], d[keep]
-    if radius_mm > 0:
-        _, _, vt = np.linalg.svd(S - S.mean(axis=0))  # the sweep direction
-        dk = dk + front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm)
-    cov = np.cov(Sk.T) / n if n > 1 else np.zeros((3, 3))
-    var = float(np.var(dk, ddof=1) / n) if n > 1 else 0.0
-    return Sk.mean(axis=0), float(dk.mean()), cov, var
-
-
-def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: float = 0.5,
-                  radius_mm: float = 0.25, sigma_theta_deg: float = 0.01,
-                  spot_radius_mm: float = 0.25) -> CalibrationData:
-    """Tip center points per tip frame; edge center points per scan line of each edge frame,
-    on the filament's axis (radius_mm: the filament's, spot_radius_mm: the laser spot's)."""
-    sel = raw["modality"] == modality
-    S = np.column_stack([raw["sx_mm"], raw["sy_mm"], raw["sz_mm"]])
-    tips, edges = [], []
-    thetas: dict[int, float] = {}
-    for f in np.unique(raw["frame"][sel & (raw["step"] == "tip")]):
-        m = sel & (raw["step"] == "tip") & (raw["frame"] == f)
-        c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
-        if c is not None:
-            tips.append(c)
-    edge_frames = np.unique(raw["frame"][sel & (raw["step"] == "edge")])
-    for i, f in enumerate(edge_frames):
-        fm = sel & (raw["step"] == "edge") & (raw["frame"] == f)
-        thetas[i] = float(np.nanmedian(raw["theta_deg"][fm]))
-        for ln in np.unique(raw["line"][fm]):
-            m = fm & (raw["line"] == ln)
-            c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold, radius_mm,
-                        spot_radius_mm)
-            if c is not None:
-                edges.append((i, *c))
-    if len(tips) < 2:
-        raise CalibrationError(f"{len(tips)} tip frame(s) with {modality.upper()} points above "
-                               f"threshold: record tip frames at two or more depths")
-    if len(thetas) < 2:
-        raise CalibrationError("need edge frames at two or more turntable angles")
-    return CalibrationData(
-        np.array([t[0] for t in tips]), np.array([t[1] for t in tips]),
-        np.array([e[1] for e in edges]), np.array([e[2] for e in edges]),
-        np.array([e[0] for e in edges]), np.array([thetas[i] for i in range(len(thetas))]),
-        sigma_theta_deg=sigma_theta_deg,
-        tip_cov_S=np.array([t[2] for t in tips]), tip_var_d=np.array([t[3] for t in tips]),
-        edge_cov_S=np.array([e[3] for e in edges]), edge_var_d=np.array([e[4] for e in edges]))
-
-
 def result_dict(r: CalibrationResult) -> dict:
     """The JSON form `dmdsm calibrate --json` prints."""
     return {"v": r.v.tolist(), "n": r.n.tolist(), "X_R": r.X_R.tolist(),
             "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
-            "rms_residual_mm": r.rms_residual_mm}
+            "rms_residual_mm": r.rms_residual_mm,
+            "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm}}
 
 
 def write_result(r: CalibrationResult, path: Path, source: str) -> None:
@@ -127,6 +63,8 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
              f"v = {vec(r.v)}", f"n = {vec(r.n)}", f"X_R = {vec(r.X_R)}",
              f"v_std = {vec(r.std['v'])}", f"n_std = {vec(r.std['n'])}",
              f"X_R_std = {vec(r.std['X_R'])}", f"rms_residual_mm = {r.rms_residual_mm:.6g}",
+             f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
+             f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
              f"source = {json.dumps(source)}",
              f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",
              f"software = \"dmdsm {__version__}\""]
@@ -265,5 +203,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         unit = " (mm)" if name == "X_R" else ""
         print(f"{name + unit:<9} [" + "; ".join(f"{a:9.4f} ± {b:.4f}" for a, b in zip(val, sd))
               + "]")
-    print(f"rms residual {r.rms_residual_mm * 1000:.1f} um; saved {args.output}")
+    print(f"rms residual {r.rms_residual_mm * 1000:.1f} um; depth scatter beyond the raw "
+          f"points' spread: tips {r.tip_depth_scatter_mm * 1000:.0f} um, edges "
+          f"{r.edge_depth_scatter_mm * 1000:.0f} um; saved {args.output}")
     return 0

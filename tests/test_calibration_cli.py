@@ -8,7 +8,7 @@ import sys
 import numpy as np
 from test_calibration import XR, N, V, synth
 
-from dmdsm.host.calibration import front_depth_mm
+from dmdsm.host.center_points import front_depth_mm
 
 
 def write_raw(path, data, radius=0.25, drop=None):
@@ -76,5 +76,29 @@ def test_bad_files_give_one_line_errors(tmp_path):
     assert r.returncode == 2 and "tip frames at two or more depths" in r.stderr
     r = dmdsm("calibrate", "--from-data", str(tmp_path / "none.csv"))
     assert r.returncode == 2 and "cannot read" in r.stderr
-    for res in (r,):
-        assert len(res.stderr.strip().splitlines()) == 1
+    assert len(r.stderr.strip().splitlines()) == 1
+    write_raw(raw, synth(thetas=(30.0, 390.5)))
+    r = dmdsm("calibrate", "--from-data", str(raw))
+    assert r.returncode == 2 and "edge frames 10 and 11 have the same turntable angle (30 deg)" \
+        in r.stderr and "rotate the table" in r.stderr
+    write_raw(raw, synth(heights=(20, 20.3, 20.6)))  # one height: no edge direction
+    r = dmdsm("calibrate", "--from-data", str(raw))
+    assert r.returncode == 2 and "edge frame 10: its center points span 0.6" in r.stderr \
+        and "heights 1 mm or more apart" in r.stderr
+    write_raw(raw, synth())
+    with open(raw, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for row in rows:
+        if row["frame"] == "11":
+            row["d_mm"] = "nan"  # no echo anywhere in that frame
+    with open(raw, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    r = dmdsm("calibrate", "--from-data", str(raw))
+    assert r.returncode == 2 and "edge frame 11: 0 of 7 scan lines" in r.stderr
+    r = dmdsm("calibrate", "--from-data", str(raw), "--modality", "us")
+    assert r.returncode == 2 and "no US raw points (modality column has: oa)" in r.stderr
+    r = dmdsm("calibrate", "--from-data", str(raw), "--threshold", "1.01")
+    assert r.returncode == 2 and "0 of 4 tip frame(s)" in r.stderr and "threshold" in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

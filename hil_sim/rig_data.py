@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from dmdsm.host.calibrate_proc import RigPlan, scan_rig
-from dmdsm.host.calibration_io import append_rows
+from dmdsm.host.rig_file import append_rows
 
 from .dataset import true_setup
 from .objects import rig_horizontal, rig_vertical

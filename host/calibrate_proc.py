@@ -53,8 +53,10 @@ def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSet
 
 
 def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
-             step: str, progress: Callable[[int, int], None] | None = None) -> list[dict]:
-    """Raw points of the tip frames (step='tip') or the edge frames (step='edge')."""
+             step: str, progress: Callable[[int, int], None] | None = None,
+             on_row: Callable[[dict], None] | None = None) -> list[dict]:
+    """Raw points of the tip frames (step='tip') or the edge frames (step='edge'); on_row
+    gets each one as it is measured (to save it before the next move)."""
     m = plan.modality
     if m not in setup.cals:
         raise ValueError(f"the ranging calibration has no {m.upper()} modality")
@@ -69,7 +71,7 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
                 1024 - len(mf.t.pulse) + int(mf.t.center)))  # no circular wrap
     rows: list[dict] = []
     if step == "tip":
-        return _scan_tips(stage, sensor, mf, setup, plan, gate, progress)
+        return _scan_tips(stage, sensor, mf, setup, plan, gate, progress, on_row)
     offs = np.arange(-plan.edge_half_mm, plan.edge_half_mm + 1e-9, plan.edge_step_mm)
     starts = [edge_start_at(plan, th) for th in plan.edge_angles_deg]
     jobs = [(f, li, starts[f][0] + ox, starts[f][1], z, th)
@@ -80,6 +82,8 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
         rows.append({"step": step, "frame": frame, "line": line, "theta_deg": th,
                      "sx_mm": x, "sy_mm": y, "sz_mm": z, "d_mm": d, "amplitude": amp,
                      "modality": m})
+        if on_row is not None:
+            on_row(rows[-1])
         if progress is not None:
             progress(i + 1, len(jobs))
     return rows
@@ -87,7 +91,8 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
 
 def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
                plan: RigPlan, gate: tuple[int, int],
-               progress: Callable[[int, int], None] | None) -> list[dict]:
+               progress: Callable[[int, int], None] | None,
+               on_row: Callable[[dict], None] | None = None) -> list[dict]:
     """Tip frames, each raster centred where the tip should be: the tip drifts across the
     raster by v_x / v_y, v_z / v_y per mm of Y step, so the second frame's centre follows the
     paper's v and later ones are extrapolated from the centre points of the frames before."""
@@ -115,6 +120,8 @@ def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingS
                 frame_rows.append({"step": "tip", "frame": f, "line": 0, "theta_deg": 0.0,
                                    "sx_mm": cx + ox, "sy_mm": y0 - dy, "sz_mm": cz + oz,
                                    "d_mm": d, "amplitude": amp, "modality": plan.modality})
+                if on_row is not None:
+                    on_row(frame_rows[-1])
                 if progress is not None:
                     progress(len(rows) + len(frame_rows), total)
         rows += frame_rows

@@ -1,12 +1,12 @@
-"""Calibration data files (one row per raw point) and the result file; `dmdsm calibrate`
-(scan a step of the procedure, or solve from a recorded file)."""
+"""`dmdsm calibrate`: scan a step of the procedure into a raw-point file, or solve from one;
+the result file (TOML)."""
 
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,37 +14,7 @@ import numpy as np
 from . import __version__
 from .calibration import CalibrationError, CalibrationResult, solve
 from .center_points import center_points
-
-COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
-           "amplitude", "modality")
-
-
-def read_raw(path: Path) -> dict[str, np.ndarray]:
-    """The raw points of a calibration CSV; extra columns are ignored."""
-    try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as e:
-        raise CalibrationError(f"cannot read {path}: {e.strerror}") from None
-    if not rows:
-        raise CalibrationError(f"{path} has no data rows")
-    missing = [c for c in COLUMNS if c not in rows[0]]
-    if missing:
-        raise CalibrationError(f"{path} lacks column(s) {', '.join(missing)} (expected: "
-                               f"{', '.join(COLUMNS)}; see docs/calibration.md)")
-    out: dict[str, np.ndarray] = {}
-    for c in COLUMNS:
-        vals = [r[c] for r in rows]
-        if c in ("step", "modality"):
-            out[c] = np.array([v.strip().lower() for v in vals])
-        else:
-            try:
-                out[c] = np.array([float(v) if v.strip() not in ("", "nan", "NaN") else np.nan
-                                   for v in vals])
-            except ValueError:
-                raise CalibrationError(f"{path}: column {c} has a value that is not a "
-                                       f"number") from None
-    return out
+from .rig_file import RawWriter, drop_step, read_raw, steps_in
 
 
 def result_dict(r: CalibrationResult) -> dict:
@@ -71,26 +41,14 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def append_rows(path: Path, rows: list[dict]) -> None:
-    """Add raw points to a calibration CSV (header written once); flushed per call, so an
-    interrupted scan leaves a readable file."""
-    new = not Path(path).exists() or Path(path).stat().st_size == 0
-    with open(path, "a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(COLUMNS))
-        if new:
-            w.writeheader()
-        for r in rows:
-            w.writerow({k: ("nan" if isinstance(v, float) and np.isnan(v) else v)
-                        for k, v in r.items()})
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `calibrate`."""
     from .calibrate_proc import RigPlan
 
     p = sub.add_parser("calibrate", help="scan the rig and solve v, n, X_R (paper §IV)")
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--from-data", type=Path, help="solve from a calibration CSV")
+    src.add_argument("--from-data", type=Path,
+                     help="solve from a calibration data file (CSV, or HDF5 if .h5)")
     src.add_argument("--step", choices=["tip", "edge"],
                      help="scan tip frames (filament horizontal) or edge frames (vertical), "
                           "appending to --data; after the edge step the data is solved")
@@ -99,7 +57,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path, default=None)
     p.add_argument("--ranging", type=Path, default=Path("ranging.json"),
                    help="from dmdsm calibrate-range")
-    p.add_argument("--data", type=Path, default=Path("rig.csv"), help="raw points (CSV)")
+    p.add_argument("--data", type=Path, default=Path("rig.csv"),
+                   help="raw points: CSV, or HDF5 if it ends in .h5 (docs/calibration.md)")
+    p.add_argument("--replace", action="store_true",
+                   help="drop the step's raw points already in --data (a repeated or "
+                        "interrupted step) before scanning it again")
     p.add_argument("--at", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="stage position facing the tip (tip step) or the filament at "
                         "angle 0 (edge step; Z is ignored)")
@@ -151,6 +113,13 @@ def _scan(args: argparse.Namespace) -> None:
         setup = RangingSetup.load(args.ranging)
     except ValueError as e:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
+    have = _steps_in(args.data)
+    if args.step in have and not args.replace:
+        raise CliError(f"{args.data} already holds {args.step} raw points: add --replace to "
+                       f"scan the {args.step} step again, or give another --data file")
+    if args.step == "edge" and "tip" not in have:
+        raise CliError(f"{args.data} holds no tip raw points: run `dmdsm calibrate --step tip` "
+                       f"with this --data first")
     x, y, z = args.at
     plan = RigPlan(tip_start=(x, y, z), edge_start=(x, y, 0.0),
                    edge_angles_deg=tuple(args.angles), modality=args.modality,
@@ -160,18 +129,40 @@ def _scan(args: argparse.Namespace) -> None:
                    average=args.average)
     cfg = load_config(args.config)
     sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
+    writer = None
     try:
         with StageClient(resolve_port("stage", args.stage, cfg)) as st, \
                 tqdm(unit="point", disable=args.json, desc=f"{args.step} frames") as bar:
             def progress(i: int, total: int) -> None:
                 bar.total = total
                 bar.update(i - bar.n)
-            rows = scan_rig(st, sc, setup, plan, args.step, progress)
-    except ValueError as e:
+            if args.replace:
+                drop_step(args.data, args.step)
+            writer = RawWriter(args.data)
+            scan_rig(st, sc, setup, plan, args.step, progress,
+                     on_row=lambda row: writer.write([row]))
+    except (ValueError, CalibrationError) as e:
         raise CliError(str(e)) from None
+    except KeyboardInterrupt:
+        if writer is not None:
+            print(f"{args.step} step stopped after {writer.n_written} raw points; they are "
+                  f"saved in {args.data}; run the step again with --replace",
+                  file=sys.stderr)
+        raise
     finally:
+        if writer is not None:
+            writer.close()
         sc.close()
-    append_rows(args.data, rows)
+
+
+def _steps_in(path: Path) -> set[str]:
+    """Steps already in the data file, with a one-line error if it cannot be read."""
+    from .cli import CliError
+
+    try:
+        return steps_in(path)
+    except CalibrationError as e:
+        raise CliError(f"{e}: give another --data file") from None
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

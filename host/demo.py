@@ -97,8 +97,8 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     """Tip frames, edge frames, solved into Table I."""
     from dmdsm.sim.scene import table_frame
 
-    from .calibration_io import read_raw
     from .plots import rig_figure
+    from .rig_file import read_raw
 
     sec = Section(TITLES["stage_rig"])
     tr = _truth(d.sim)

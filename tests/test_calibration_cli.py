@@ -9,6 +9,7 @@ import numpy as np
 from test_calibration import XR, N, V, synth
 
 from dmdsm.host.center_points import front_depth_mm
+from dmdsm.host.rig_file import COLUMNS, append_rows, read_raw
 
 
 def write_raw(path, data, radius=0.25, drop=None):
@@ -63,6 +64,21 @@ def test_calibrate_from_data_recovers_table_i(tmp_path):
     assert text.startswith("# dmdsm scanner calibration") and "X_R_std" in text
     r = dmdsm("calibrate", "--from-data", str(raw), "--radius", "0.25", "-o", str(out))
     assert r.returncode == 0 and r.stdout.startswith("v ")
+
+
+def test_the_same_data_in_hdf5_gives_the_same_result(tmp_path):
+    raw, h5 = tmp_path / "rig.csv", tmp_path / "rig.h5"
+    write_raw(raw, synth(radius=0.25, noise=(0.01, 0.02, 0.01), seed=4))
+    cols = read_raw(raw)
+    append_rows(h5, [{c: cols[c][i].item() for c in COLUMNS} for i in range(len(cols["step"]))])
+    got = []
+    for path in (raw, h5):
+        r = dmdsm("calibrate", "--from-data", str(path), "-o", str(tmp_path / "c.toml"),
+                  "--json")
+        assert r.returncode == 0, r.stderr
+        got.append(json.loads(r.stdout))
+        assert f'source = "{path}"' in (tmp_path / "c.toml").read_text()
+    assert got[0] == got[1]
 
 
 def test_bad_files_give_one_line_errors(tmp_path):

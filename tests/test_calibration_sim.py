@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from dmdsm.host.calibration import solve, tangent_errors
-from dmdsm.host.calibration_io import COLUMNS
 from dmdsm.host.center_points import center_points
+from dmdsm.host.rig_file import COLUMNS
 from dmdsm.sim.rig_data import record
 
 SEEDS = range(12)

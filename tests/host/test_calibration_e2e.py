@@ -3,19 +3,23 @@ calibration on the block, tip frames (filament horizontal), edge frames (filamen
 0 and 180 deg), solved into Table I within the reported uncertainties."""
 
 import json
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
+from dmdsm.host.rig_file import read_raw
 from dmdsm.host.stage import StageClient
 from dmdsm.sim.objects import rig_horizontal, rig_vertical
 from dmdsm.sim.scene import table_frame
 
+CMD = [sys.executable, "-m", "dmdsm.host"]
+
 
 def dmdsm(*args):
-    r = subprocess.run([sys.executable, "-m", "dmdsm.host", *args], capture_output=True,
-                       text=True, timeout=600)
+    r = subprocess.run(CMD + list(args), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     return r.stdout
 
@@ -45,11 +49,32 @@ def test_calibration_procedure_recovers_table_i_end_to_end(emulator, tmp_path):
     out_tip = dmdsm("calibrate", "--step", "tip", *ports, "--ranging", str(ranging),
                     "--data", str(data), "--at", *(f"{c:.3f}" for c in tip), "--json")
     assert json.loads(out_tip)["step"] == "tip"
+    again = subprocess.run(CMD + ["calibrate", "--step", "tip", *ports, "--ranging",
+                                  str(ranging), "--data", str(data), "--at", "0", "0", "0"],
+                           capture_output=True, text=True, timeout=60)
+    assert again.returncode == 2 and "already holds tip raw points: add --replace" \
+        in again.stderr
     mount(rig_vertical())
     fil = sim.scene.X_R + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * v
-    res = json.loads(dmdsm("calibrate", "--step", "edge", *ports, "--ranging", str(ranging),
-                           "--data", str(data), "--at", f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0",
-                           "-o", str(out), "--json"))
+    edge = CMD + ["calibrate", "--step", "edge", *ports, "--ranging", str(ranging), "--data",
+                  str(data), "--at", f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0", "-o", str(out)]
+    # Ctrl-C during the edge step: the points so far are on disk, the stage stopped
+    proc = subprocess.Popen(edge, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 300
+    while data.read_text().count("\nedge,") < 20 and time.monotonic() < deadline \
+            and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    n_edge = int(np.sum(read_raw(data)["step"] == "edge"))
+    assert 20 <= n_edge < 182 and f"edge step stopped after {n_edge} raw points" in err \
+        and "--replace" in err
+    assert not out.exists()
+    with StageClient(emu.stage) as st:
+        st.where()
+    res = json.loads(dmdsm(*edge[3:], "--replace", "--json"))
     n_true = sim.scene.n / np.linalg.norm(sim.scene.n)
     assert np.degrees(np.arccos(np.clip(np.dot(res["v"], v), -1, 1))) < 2.0
     assert np.degrees(np.arccos(np.clip(np.dot(res["n"], n_true), -1, 1))) < 0.5
@@ -62,4 +87,5 @@ def test_calibration_procedure_recovers_table_i_end_to_end(emulator, tmp_path):
             err, sd = res[name][i] - true[i], res["std"][name][i]
             assert abs(err) <= 4 * sd, f"{name}[{i}] off by {err:.2e} = {err / sd:.1f} std"
     assert out.read_text().count("X_R") >= 2
-    assert data.read_text().count("\n") > 400  # raw points kept for re-solving
+    raw = read_raw(data)  # every raw point kept for re-solving, the interrupted ones dropped
+    assert np.sum(raw["step"] == "tip") == 4 * 81 and np.sum(raw["step"] == "edge") == 2 * 7 * 13

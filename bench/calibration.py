@@ -65,17 +65,29 @@ def main(trials: int = 200) -> int:
     for n_tip, n_h in ((2, 4), (4, 7), (8, 14), (16, 28)):
         depths = tuple(np.linspace(4, 10, n_tip))
         heights = tuple(np.linspace(8, 32, n_h))
-        ev, en, ex = [], [], []
-        for t in range(50):
-            r = solve(synth(noise=NOISE, heights=heights, tip_depths=depths, seed=10_000 + t))
-            ev.append(np.degrees(np.arccos(min(1.0, float(r.v @ V)))))
-            en.append(np.degrees(np.arccos(min(1.0, float(r.n @ N)))))
-            ex.append(np.linalg.norm((r.X_R - XR)[:2]))
-        rms = [float(np.sqrt(np.mean(np.square(e)))) for e in (ev, en, ex)]
+        errs = np.array([_errors(solve(synth(noise=NOISE, heights=heights, tip_depths=depths,
+                                             seed=10_000 + t))) for t in range(50)])
+        rms = np.sqrt(np.mean(errs ** 2, axis=0))
         print(f"{n_tip:>8} {2 * n_h:>9} {rms[0]:>10.4f} {rms[1]:>10.4f} {rms[2]:>11.4f}")
+    print("accuracy as the edge frames grow (MLE, 4 tip frames, 7 heights per edge frame, "
+          "angles spread over the turn, 50 trials each):")
+    print(f"{'edge frames':>11} {'v err deg':>10} {'n err deg':>10} {'X_R err mm':>11}")
+    for n_frames in (2, 3, 4, 6, 8):
+        thetas = tuple(np.arange(n_frames) * 360.0 / n_frames)
+        errs = np.array([_errors(solve(synth(noise=NOISE, thetas=thetas, seed=20_000 + t)))
+                         for t in range(50)])
+        rms = np.sqrt(np.mean(errs ** 2, axis=0))
+        print(f"{n_frames:>11} {rms[0]:>10.4f} {rms[1]:>10.4f} {rms[2]:>11.4f}")
     ok &= max(times) < 1.0
     print("PASS" if ok else "FAIL: a target was missed")
     return 0 if ok else 1
+
+
+def _errors(r: object) -> tuple[float, float, float]:
+    """Angle errors of v and n (deg) and the X_R error in the table plane (mm)."""
+    return (float(np.degrees(np.arccos(min(1.0, float(r.v @ V))))),
+            float(np.degrees(np.arccos(min(1.0, float(r.n @ N))))),
+            float(np.linalg.norm((r.X_R - XR)[:2])))
 
 
 def emulator_seeds(n_seeds: int) -> int:

@@ -174,6 +174,9 @@ class CalibrationResult:
     svd: dict[str, np.ndarray] = field(default_factory=dict)
     edge_depth_scatter_mm: float = 0.0  # the surface's share of an edge depth's std
     tip_depth_scatter_mm: float = 0.0   # the ranging's share of a tip depth's std
+    # per center point at the solution: tip (k, 3) mm from the fitted tip; edge (m,) mm
+    # from the fitted filament line; theta_deg (F,) fitted minus read table angle
+    residuals: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
@@ -283,9 +286,19 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     cov = Jv @ cov_p @ Jv.T
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
     rms_mm = float(np.sqrt(np.mean(residuals(sol.x, whiten=False) ** 2)))
+    _, _, _, q, pt, tip, th = unpack(sol.x)
+    edge_res = np.empty(len(data.edge_d))
+    for i, f in enumerate(frames):
+        sel = data.edge_frame == f
+        R = rodrigues(n, np.radians(th[i]))
+        rel = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v \
+            - (xr + R @ (pt - xr))
+        edge_res[sel] = np.linalg.norm(np.cross(rel, R @ q), axis=1)
+    res = {"tip": data.tip_S + data.tip_d[:, None] * v - tip, "edge": edge_res,
+           "theta_deg": th - np.asarray(thetas)}
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
                              cov, rms_mm, svd, float(np.sqrt(extra[1])),
-                             float(np.sqrt(extra[0])))
+                             float(np.sqrt(extra[0])), res)
 
 
 def cramer_rao_bound(design: CalibrationData) -> np.ndarray:

@@ -22,7 +22,10 @@ def result_dict(r: CalibrationResult) -> dict:
     return {"v": r.v.tolist(), "n": r.n.tolist(), "X_R": r.X_R.tolist(),
             "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
             "rms_residual_mm": r.rms_residual_mm,
-            "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm}}
+            "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm},
+            "residuals": {"tip_mm": r.residuals["tip"].tolist(),
+                          "edge_mm": r.residuals["edge"].tolist(),
+                          "theta_deg": r.residuals["theta_deg"].tolist()}}
 
 
 def write_result(r: CalibrationResult, path: Path, source: str) -> None:

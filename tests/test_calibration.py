@@ -59,6 +59,18 @@ def test_noise_free_data_is_recovered_exactly():
     assert np.allclose(r.svd["X_R"], XR, atol=1e-9)
 
 
+def test_residuals_point_at_the_bad_center_point():
+    clean = solve(synth(noise=(0.01, 0.02, 0.01), seed=2))
+    assert clean.residuals["tip"].shape == (4, 3) and clean.residuals["edge"].shape == (14,)
+    assert np.abs(clean.residuals["edge"]).max() < 0.1
+    bad = synth(noise=(0.01, 0.02, 0.01), seed=2)
+    bad.edge_S[9] += 0.4 * unit(np.cross(V, N))  # one sweep found a dust grain, not the edge
+    r = solve(bad)
+    assert int(np.argmax(r.residuals["edge"])) == 9 and r.residuals["edge"][9] > 0.2
+    assert r.rms_residual_mm > clean.rms_residual_mm
+    assert np.allclose(solve(synth()).residuals["tip"], 0, atol=1e-9)
+
+
 def test_filament_radius_is_corrected():
     wrong = solve(synth(radius=0.25), refine=False)
     d = synth(radius=0.25)

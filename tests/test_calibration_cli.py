@@ -60,6 +60,7 @@ def test_calibrate_from_data_recovers_table_i(tmp_path):
     assert np.allclose(res["v"], V, atol=1e-6) and np.allclose(res["n"], N, atol=1e-6)
     assert np.allclose(res["X_R"], XR, atol=1e-5)
     assert set(res["std"]) == {"v", "n", "X_R"} and "rms_residual_mm" in res
+    assert len(res["residuals"]["edge_mm"]) == 14 and len(res["residuals"]["tip_mm"]) == 4
     text = out.read_text()
     assert text.startswith("# dmdsm scanner calibration") and "X_R_std" in text
     r = dmdsm("calibrate", "--from-data", str(raw), "--radius", "0.25", "-o", str(out))

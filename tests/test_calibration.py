@@ -81,17 +81,20 @@ def test_filament_radius_is_corrected():
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**31), tilt=st.floats(0.0, 0.05), turn=st.floats(60, 180))
-def test_errors_are_within_4_sigma_of_the_reported_covariance(seed, tilt, turn):
+@given(seed=st.integers(0, 2**31), tilt=st.floats(0.0, 0.05), turn=st.floats(60, 180),
+       scale=st.floats(0.3, 3.0), x=st.floats(-50, 50), y=st.floats(-50, 50))
+def test_errors_are_within_4_sigma_of_the_reported_covariance(seed, tilt, turn, scale, x, y):
     rng = np.random.default_rng(seed)
     n = unit(N + tilt * rng.normal(size=3))
     v = unit(V + 0.05 * rng.normal(size=3))
-    data = synth(v=v, n=n, thetas=(0.0, turn), noise=(0.01, 0.02, 0.01), seed=seed)
+    xr = XR + np.array([x, y, 0.0])
+    data = synth(v=v, n=n, xr=xr, thetas=(0.0, turn),
+                 noise=(0.01 * scale, 0.02 * scale, 0.01 * scale), seed=seed)
     r = solve(data)
     for name, true in (("v", v), ("n", n)):  # unit vectors: their two tangent coordinates
         err, sd = tangent_errors(r, name, true)
         assert (np.abs(err) <= 4 * sd).all(), (name, err, sd)
-    err = (r.X_R - XR)[:2]
+    err = (r.X_R - xr)[:2]
     assert (np.abs(err) <= 4 * r.std["X_R"][:2]).all(), (err, r.std["X_R"])
 
 

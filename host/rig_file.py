@@ -26,6 +26,9 @@ def is_hdf5(path: Path) -> bool:
 
 def _missing(path: Path, have: list[str]) -> None:
     missing = [c for c in COLUMNS if c not in have]
+    if len(missing) == len(COLUMNS):
+        raise CalibrationError(f"{path} is not a calibration data file: it has none of the "
+                               f"columns {', '.join(COLUMNS)} (see docs/calibration.md)")
     if missing:
         raise CalibrationError(f"{path} lacks column(s) {', '.join(missing)} (expected: "
                                f"{', '.join(COLUMNS)}; see docs/calibration.md)")

@@ -91,6 +91,10 @@ def test_bad_files_give_one_line_errors(tmp_path):
     write_raw(raw, d)
     r = dmdsm("calibrate", "--from-data", str(raw))
     assert r.returncode == 2 and "tip frames at two or more depths" in r.stderr
+    (tmp_path / "cal.toml").write_text("[calibration]\nv = [0, 1, 0]\n")
+    r = dmdsm("calibrate", "--from-data", str(tmp_path / "cal.toml"))
+    assert r.returncode == 2 and "cal.toml is not a calibration data file: it has none of " \
+        "the columns step, frame" in r.stderr
     r = dmdsm("calibrate", "--from-data", str(tmp_path / "none.csv"))
     assert r.returncode == 2 and "cannot read" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

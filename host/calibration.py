@@ -54,16 +54,25 @@ def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- closed-form estimates
-def estimate_v(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """v and the tip point from tip center points of >= 2 depths (eq. 2).
+def skew(a: np.ndarray) -> np.ndarray:
+    """[a]_x: the matrix with [a]_x b = a x b."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
-    All S_c + d_c v are the same tip point, so S_c - S_mean = -(d_c - d_mean) v; the least
-    squares solution points from sensor to target because depths grow away from it."""
+
+def estimate_v(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """v and the tip point from tip center points at >= 2 depths (eq. 2).
+
+    All S_c + d_c v are the same tip point, so (S_c - S_mean) x v = 0: v is the null vector of
+    the stacked [S_c - S_mean]_x, by SVD. Its sign makes v point from sensor to target: the
+    depth shrinks as the sensor moves along v."""
     S, d = np.asarray(S, float), np.asarray(d, float)
-    if len(S) < 2 or np.ptp(d) < 1e-9:
+    A = S - S.mean(axis=0) if len(S) else S
+    if len(S) < 2 or np.ptp(d) < 1e-9 or np.linalg.norm(A, axis=1).max() < 1e-9:
         raise CalibrationError("need tip frames at two or more depths: step the sensor along "
                                "the beam between tip frames")
-    v = unit(-(S - S.mean(axis=0)).T @ (d - d.mean()))  # least squares of dS = -dd v
+    v = np.linalg.svd(np.vstack([skew(a) for a in A]))[2][-1]
+    if (A @ v) @ (d - d.mean()) > 0:
+        v = -v
     tip = (S + d[:, None] * v).mean(axis=0)
     return v, tip
 

@@ -10,6 +10,7 @@ from dmdsm.host.calibration import (
     CalibrationError,
     cramer_rao_bound,
     estimate_axis,
+    estimate_v,
     rodrigues,
     solve,
     tangent_basis,
@@ -57,6 +58,17 @@ def test_noise_free_data_is_recovered_exactly():
     assert np.allclose(r.v, V, atol=1e-9) and np.allclose(r.n, N, atol=1e-9)
     assert np.allclose(r.X_R, XR, atol=1e-9)
     assert np.allclose(r.svd["X_R"], XR, atol=1e-9)
+
+
+@settings(max_examples=50, deadline=None)
+@given(v=st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda a: np.linalg.norm(a) > 0.1),
+       depths=st.lists(st.floats(0.5, 30), min_size=2, max_size=8, unique=True).filter(
+           lambda d: np.ptp(d) > 0.1))
+def test_v_by_svd_points_from_sensor_to_target(v, depths):
+    v, d = unit(np.array(v)), np.array(depths)
+    tip = np.array([230.0, 280.0, 20.0])
+    est, tip_est = estimate_v(tip - d[:, None] * v, d)
+    assert np.allclose(est, v, atol=1e-9) and np.allclose(tip_est, tip, atol=1e-9)
 
 
 def test_residuals_point_at_the_bad_center_point():

@@ -1,9 +1,11 @@
 """`dmdsm calibrate --from-data`: raw points to center points to Table I, with clear errors."""
 
 import csv
+import hashlib
 import json
 import subprocess
 import sys
+import tomllib
 
 import numpy as np
 from test_calibration import XR, N, V, synth
@@ -63,6 +65,10 @@ def test_calibrate_from_data_recovers_table_i(tmp_path):
     assert len(res["residuals"]["edge_mm"]) == 14 and len(res["residuals"]["tip_mm"]) == 4
     text = out.read_text()
     assert text.startswith("# dmdsm scanner calibration") and "X_R_std" in text
+    saved = tomllib.loads(text)["calibration"]
+    assert saved["source"] == str(raw) and saved["software"].startswith("dmdsm ")
+    assert saved["source_sha256"] == hashlib.sha256(raw.read_bytes()).hexdigest()
+    assert np.allclose(saved["X_R"], res["X_R"]) and np.allclose(saved["v_std"], res["std"]["v"])
     r = dmdsm("calibrate", "--from-data", str(raw), "--radius", "0.25", "-o", str(out))
     assert r.returncode == 0 and r.stdout.startswith("v ")
 

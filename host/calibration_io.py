@@ -120,6 +120,7 @@ def _scan(args: argparse.Namespace) -> None:
     from .range_cal import RangingSetup
     from .sensor import SensorClient
     from .stage import StageClient
+    from .transport import LinkError
 
     if args.at is None:
         raise CliError("give --at X Y Z: the stage position facing the tip (or the filament)")
@@ -157,6 +158,10 @@ def _scan(args: argparse.Namespace) -> None:
                      on_row=lambda row: writer.write([row]))
     except (ValueError, CalibrationError) as e:
         raise CliError(str(e)) from None
+    except LinkError as e:  # the stage was quick-stopped by its context manager
+        saved = writer.n_written if writer is not None else 0
+        raise CliError(f"{e}; the {args.step} step stopped after {saved} raw points, saved "
+                       f"in {args.data}: run the step again with --replace") from None
     except KeyboardInterrupt:
         if writer is not None:
             print(f"{args.step} step stopped after {writer.n_written} raw points; they are "

@@ -178,7 +178,7 @@ class SensorClient:
         """Send a command and return its response; retried with the same seq on timeout."""
         if self.link_error:
             raise SensorError(f"lost the sensor board on {self.port_name} ({self.link_error}): "
-                              f"reconnect() or run the command again")
+                              f"check its USB cable, then run the command again")
         self.seq = (self.seq + 1) & 0xFFFF
         seq = self.seq
         frame = encode_frame(Message(name, seq=seq, **fields))
@@ -196,8 +196,8 @@ class SensorClient:
                     return self.responses.pop(seq)
                 if self.link_error:
                     raise SensorError(f"lost the sensor board on {self.port_name} "
-                                      f"({self.link_error}): reconnect() or run the command "
-                                      f"again")
+                                      f"({self.link_error}): check its USB cable, then run "
+                                      f"the command again")
         raise SensorError(f"no reply to {name} from {self.port_name} after "
                           f"{self.retries + 1} tries: is the sensor board powered and flashed?")
 

@@ -89,3 +89,40 @@ def test_calibration_procedure_recovers_table_i_end_to_end(emulator, tmp_path):
     assert out.read_text().count("X_R") >= 2
     raw = read_raw(data)  # every raw point kept for re-solving, the interrupted ones dropped
     assert np.sum(raw["step"] == "tip") == 4 * 81 and np.sum(raw["step"] == "edge") == 2 * 7 * 13
+
+
+def test_lost_sensor_stops_the_step_and_keeps_the_points(emulator, tmp_path):
+    from dmdsm.host.range_cal import RangeCal, RangingSetup
+    from dmdsm.host.ranging import gaussian_pulse
+
+    emu = emulator(speed=5.0, scene="aluminium_block", seed=4)
+    fs = 240e6 / 67
+    ranging, data = tmp_path / "ranging.json", tmp_path / "rig.csv"
+    RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
+                 {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(ranging)
+    with StageClient(emu.stage) as st:
+        st.home()
+    proc = subprocess.Popen(CMD + ["calibrate", "--step", "tip", "--sensor", emu.sensor,
+                                   "--stage", emu.stage, "--ranging", str(ranging), "--data",
+                                   str(data), "--at", "230", "260", "20"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while (not data.exists() or data.read_text().count("\ntip,") < 15) \
+            and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    chan = emu.sim.channels[("sensor", "up")]
+    with emu.server.lock:  # the sensor's USB cable is pulled
+        chan.f.disconnect, chan.f.reconnect_s = 1e9, 0.5
+    time.sleep(0.05)
+    with emu.server.lock:
+        chan.f.disconnect = 0.0
+    _, err = proc.communicate(timeout=120)
+    saved = int(np.sum(read_raw(data)["step"] == "tip"))
+    assert proc.returncode == 2 and saved >= 15, err
+    assert "lost the sensor board" in err and f"the tip step stopped after {saved} raw points, " \
+        f"saved in {data}: run the step again with --replace" in err
+    errors = [ln for ln in err.splitlines() if "error" in ln.lower()]  # besides the bar
+    assert len(errors) == 1 and errors[0].startswith("dmdsm: error: ") \
+        and "Traceback" not in err
+    with StageClient(emu.stage) as st:  # the stage was stopped and still answers
+        st.where()

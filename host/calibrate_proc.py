@@ -33,6 +33,26 @@ class RigPlan:
     depth_range_mm: tuple[float, float] = (2.0, 25.0)  # where echoes are searched
 
 
+def check_plan(plan: RigPlan, step: str) -> None:
+    """Refuse, before anything moves, a plan whose data could not be solved (ValueError)."""
+    if step == "tip":
+        if len(set(plan.tip_depth_steps)) < 2:
+            raise ValueError("give two or more different --tip-depths (mm): v needs tip "
+                             "frames at two or more depths")
+        if plan.tip_half_mm <= 0 or plan.tip_step_mm <= 0:
+            raise ValueError("--tip-half and --tip-step must be positive (mm)")
+        return
+    turns = np.radians(np.asarray(plan.edge_angles_deg, float))
+    if not any(abs(np.angle(np.exp(1j * (t - turns[0])))) >= np.radians(1.0) for t in turns):
+        raise ValueError("give two or more different --angles (deg): n and X_R need the "
+                         "filament at two or more turntable angles")
+    if np.ptp(plan.edge_z_levels) < 1.0:
+        raise ValueError("give --edge-levels (mm) 1 mm or more apart: each edge frame needs "
+                         "center points at two or more heights")
+    if plan.edge_half_mm <= 0 or plan.edge_step_mm <= 0:
+        raise ValueError("--edge-half and --edge-step must be positive (mm)")
+
+
 def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
              plan: RigPlan, gate: tuple[int, int], x: float, y: float, z: float,
              a: float) -> tuple[float, float]:

@@ -114,7 +114,7 @@ def _scan(args: argparse.Namespace) -> None:
     """One step of the procedure against the boards, appended to args.data."""
     from tqdm import tqdm
 
-    from .calibrate_proc import RigPlan, scan_rig
+    from .calibrate_proc import RigPlan, check_plan, scan_rig
     from .cli import CliError
     from .config import load_config, resolve_port
     from .range_cal import RangingSetup
@@ -124,6 +124,17 @@ def _scan(args: argparse.Namespace) -> None:
 
     if args.at is None:
         raise CliError("give --at X Y Z: the stage position facing the tip (or the filament)")
+    x, y, z = args.at
+    plan = RigPlan(tip_start=(x, y, z), edge_start=(x, y, 0.0),
+                   edge_angles_deg=tuple(args.angles), modality=args.modality,
+                   tip_depth_steps=tuple(args.tip_depths), tip_half_mm=args.tip_half,
+                   tip_step_mm=args.tip_step, edge_z_levels=tuple(args.edge_levels),
+                   edge_half_mm=args.edge_half, edge_step_mm=args.edge_step,
+                   average=args.average)
+    try:
+        check_plan(plan, args.step)
+    except ValueError as e:
+        raise CliError(str(e)) from None
     try:
         setup = RangingSetup.load(args.ranging)
     except ValueError as e:
@@ -135,13 +146,6 @@ def _scan(args: argparse.Namespace) -> None:
     if args.step == "edge" and "tip" not in have:
         raise CliError(f"{args.data} holds no tip raw points: run `dmdsm calibrate --step tip` "
                        f"with this --data first")
-    x, y, z = args.at
-    plan = RigPlan(tip_start=(x, y, z), edge_start=(x, y, 0.0),
-                   edge_angles_deg=tuple(args.angles), modality=args.modality,
-                   tip_depth_steps=tuple(args.tip_depths), tip_half_mm=args.tip_half,
-                   tip_step_mm=args.tip_step, edge_z_levels=tuple(args.edge_levels),
-                   edge_half_mm=args.edge_half, edge_step_mm=args.edge_step,
-                   average=args.average)
     cfg = load_config(args.config)
     sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
     writer = None

@@ -129,3 +129,18 @@ def test_bad_files_give_one_line_errors(tmp_path):
     r = dmdsm("calibrate", "--from-data", str(raw), "--threshold", "1.01")
     assert r.returncode == 2 and "0 of 4 tip frame(s)" in r.stderr and "threshold" in r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_step_that_could_not_be_solved_is_refused_before_the_stage_moves(tmp_path):
+    common = ["--sensor", str(tmp_path / "no-sensor"), "--stage", str(tmp_path / "no-stage"),
+              "--data", str(tmp_path / "rig.csv"), "--at", "230", "260", "20"]
+    for step, flags, want in (
+            ("tip", ["--tip-depths", "3", "3"], "two or more different --tip-depths"),
+            ("tip", ["--tip-step", "0"], "--tip-half and --tip-step must be positive"),
+            ("edge", ["--angles", "0", "360"], "two or more different --angles"),
+            ("edge", ["--edge-levels", "20", "20.5"], "--edge-levels (mm) 1 mm or more apart"),
+    ):
+        r = dmdsm("calibrate", "--step", step, *common, *flags)
+        assert r.returncode == 2 and want in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "rig.csv").exists()

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .calibration import same_angle
 from .range_cal import RangingSetup
 from .range_cmd import gate_for
 from .ranging import MatchedFilter
@@ -42,8 +43,8 @@ def check_plan(plan: RigPlan, step: str) -> None:
         if plan.tip_half_mm <= 0 or plan.tip_step_mm <= 0:
             raise ValueError("--tip-half and --tip-step must be positive (mm)")
         return
-    turns = np.radians(np.asarray(plan.edge_angles_deg, float))
-    if not any(abs(np.angle(np.exp(1j * (t - turns[0])))) >= np.radians(1.0) for t in turns):
+    angles = plan.edge_angles_deg
+    if all(same_angle(a, angles[0]) for a in angles):
         raise ValueError("give two or more different --angles (deg): n and X_R need the "
                          "filament at two or more turntable angles")
     if np.ptp(plan.edge_z_levels) < 1.0:

@@ -53,6 +53,11 @@ def retract(u: np.ndarray, basis: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return unit(u + basis @ delta)
 
 
+def same_angle(a_deg: float, b_deg: float, tol_deg: float = 1.0) -> bool:
+    """True if two turntable readings are the same angle modulo a turn (within tol_deg)."""
+    return bool(abs((a_deg - b_deg + 180.0) % 360.0 - 180.0) < tol_deg)
+
+
 # ---------------------------------------------------------------- closed-form estimates
 def skew(a: np.ndarray) -> np.ndarray:
     """[a]_x: the matrix with [a]_x b = a x b."""
@@ -105,7 +110,7 @@ def estimate_axis(lines: list[tuple[np.ndarray, np.ndarray]], thetas_deg: list[f
     if len(lines) < 2:
         raise CalibrationError("need edge frames at two or more turntable angles")
     for i in range(1, len(th)):
-        if abs(np.angle(np.exp(1j * (th[i] - th[0])))) < np.radians(1.0):
+        if same_angle(thetas_deg[i], thetas_deg[0]):
             raise CalibrationError(f"edge frames 0 and {i} have the same turntable angle: "
                                    f"rotate the table between them")
     q = np.array([ln[0] for ln in lines])
@@ -294,17 +299,14 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
     Jv[6, 4] = Jv[7, 5] = 1.0
     cov = Jv @ cov_p @ Jv.T
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
-    rms_mm = float(np.sqrt(np.mean(residuals(sol.x, whiten=False) ** 2)))
-    _, _, _, q, pt, tip, th = unpack(sol.x)
+    raw = residuals(sol.x, whiten=False)  # tip (k, 3), then 2 across-line mm per edge point
+    rms_mm = float(np.sqrt(np.mean(raw ** 2)))
+    k = len(data.tip_d)
     edge_res = np.empty(len(data.edge_d))
-    for i, f in enumerate(frames):
-        sel = data.edge_frame == f
-        R = rodrigues(n, np.radians(th[i]))
-        rel = data.edge_S[sel] + (data.edge_d[sel, None] + data.filament_radius_mm) * v \
-            - (xr + R @ (pt - xr))
-        edge_res[sel] = np.linalg.norm(np.cross(rel, R @ q), axis=1)
-    res = {"tip": data.tip_S + data.tip_d[:, None] * v - tip, "edge": edge_res,
-           "theta_deg": th - np.asarray(thetas)}
+    order = np.concatenate([np.flatnonzero(data.edge_frame == f) for f in frames])
+    edge_res[order] = np.linalg.norm(raw[3 * k:].reshape(-1, 2), axis=1)
+    res = {"tip": raw[:3 * k].reshape(k, 3), "edge": edge_res,
+           "theta_deg": unpack(sol.x)[6] - np.asarray(thetas)}
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
                              cov, rms_mm, svd, float(np.sqrt(extra[1])),
                              float(np.sqrt(extra[0])), res)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 
 from . import __version__
 from .calibration import CalibrationError, CalibrationResult, solve
+from .catalogue import file_hash
 from .center_points import center_points
 from .rig_file import RawWriter, drop_step, read_raw, steps_in
 
@@ -29,15 +29,6 @@ def result_dict(r: CalibrationResult) -> dict:
                           "theta_deg": r.residuals["theta_deg"].tolist()}}
 
 
-def _sha256(path: Path) -> str:
-    """The data file's SHA-256, so a result can be matched to the exact raw points."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def write_result(r: CalibrationResult, path: Path, source: str) -> None:
     """The calibration TOML that dmdsm commands load ([calibration] section)."""
     def vec(x: np.ndarray) -> str:
@@ -49,7 +40,7 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
              f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
              f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
              f"source = {json.dumps(source)}",
-             f"source_sha256 = \"{_sha256(Path(source))}\"",
+             f"source_sha256 = \"{file_hash(Path(source))}\"",
              f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",
              f"software = \"dmdsm {__version__}\""]
     Path(path).write_text("\n".join(lines) + "\n")

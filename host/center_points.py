@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibration import CalibrationData, CalibrationError
+from .calibration import CalibrationData, CalibrationError, same_angle
 
 MIN_POINTS = 2  # raw points above threshold a center point needs (one gives no spread)
 
@@ -60,9 +60,7 @@ def _edge_angles(frames: list[float], thetas: list[float]) -> None:
         if not np.isfinite(th):
             raise CalibrationError(f"edge frame {f:g} has no turntable angle (theta_deg): "
                                    f"record the table reading with each raw point")
-    if len(frames) >= 2 and all(
-            abs(np.angle(np.exp(1j * np.radians(th - thetas[0])))) < np.radians(1.0)
-            for th in thetas[1:]):
+    if len(frames) >= 2 and all(same_angle(th, thetas[0]) for th in thetas[1:]):
         raise CalibrationError(f"edge frames {frames[0]:g} and {frames[1]:g} have the same "
                                f"turntable angle ({thetas[0]:g} deg): rotate the table "
                                f"between them")

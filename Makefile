@@ -85,8 +85,19 @@ gen-check: deps
 	$(PY) -m dmdsm.protocol.gen_c --check
 	$(PY) -m dmdsm.protocol.gen_docs --check
 
+# import-linter reads the packages from disk: build/importgraph/dmdsm is the installed
+# package's layout (dmdsm.host = host/, dmdsm.sim = hil_sim/, ...) as symbolic links.
+IMPORTGRAPH := build/importgraph
 lint: deps
 	$(PY) -m ruff check protocol host hil_sim tests bench firmware/marlin_patch
+	@rm -rf $(IMPORTGRAPH) && mkdir -p $(IMPORTGRAPH)/dmdsm
+	@ln -s $(CURDIR)/host $(IMPORTGRAPH)/dmdsm/host
+	@ln -s $(CURDIR)/hil_sim $(IMPORTGRAPH)/dmdsm/sim
+	@ln -s $(CURDIR)/protocol $(IMPORTGRAPH)/dmdsm/protocol
+	@ln -s $(CURDIR)/firmware/marlin_patch $(IMPORTGRAPH)/dmdsm/marlin_patch
+	@echo '"""dmdsm, laid out for lint-imports."""' > $(IMPORTGRAPH)/dmdsm/__init__.py
+	cd $(IMPORTGRAPH) && PYTHONPATH=. $(CURDIR)/$(VENV)/bin/lint-imports --no-cache \
+	  $(CURDIR)/pyproject.toml
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
 	  --std=c11 --inline-suppr -Iprotocol/c -Ifirmware/stm32/core protocol/c firmware/stm32/core tests/c
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_calibration import XR, N, V, synth  # noqa: E402
 
-from dmdsm.host.calibration import cramer_rao_bound, solve, tangent_basis  # noqa: E402
+from dmdsm.host.calibration.solver import cramer_rao_bound, solve, tangent_basis  # noqa: E402
 
 NOISE = (0.01, 0.03, 0.02)  # stage mm, depth mm, turntable deg (per center point)
 HEIGHTS = (8, 12, 16, 20, 24, 28, 32)  # 7 edge center points per frame -> 14
@@ -95,8 +95,8 @@ def emulator_seeds(n_seeds: int) -> int:
     reported std per coordinate, worst |error|/std, and X_R along the beam per correction."""
     from test_calibration_sim import COORDS, as_raw, errors
 
-    from dmdsm.host.center_points import center_points
-    from dmdsm.sim.rig_data import record
+    from dmdsm.host.calibration.center_points import center_points
+    from dmdsm.sim.data.rig_data import record
 
     errs, sds, along = [], [], {"spot model": [], "none": [], "constant radius": []}
     t0 = time.perf_counter()

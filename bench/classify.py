@@ -17,15 +17,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from dmdsm.host import classify  # noqa: E402
-from dmdsm.host.classify import (  # noqa: E402
+from dmdsm.host.classify.materials import (
     assemble,
     evaluate_loo,
     evaluate_random,
     fit,
     per_class_accuracy,
 )
-from dmdsm.sim.dataset import make_database  # noqa: E402
+from dmdsm.host.classify import materials as classify  # noqa: E402
+from dmdsm.sim.data.dataset import make_database  # noqa: E402
 
 # Fig. 5 diagonal (the text of §V-B2 says 79.5 % for the apple, the abstract 79.0 %)
 PAPER = {"aluminium": 100.0, "apple": 79.0, "foam": 100.0, "glass": 100.0, "paper": 100.0,

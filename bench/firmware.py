@@ -17,7 +17,7 @@ import numpy as np
 import serial
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
-from dmdsm.sim.qemu import QemuSensor
+from dmdsm.sim.boards.qemu import QemuSensor
 
 REPO = Path(__file__).resolve().parents[1]
 FW = REPO / "firmware/stm32"

@@ -11,8 +11,8 @@ import subprocess
 import sys
 import time
 
-from dmdsm.host.sensor import SensorClient
-from dmdsm.host.stage import StageClient
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.links.stage import StageClient
 
 
 def start_sim(*args: str) -> tuple[subprocess.Popen, dict]:

@@ -16,7 +16,12 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.signal import hilbert
 
-from dmdsm.host.ranging import MatchedFilter, crlb_samples, gaussian_pulse, speed_of_sound_mm_s
+from dmdsm.host.ranging.matched_filter import (
+    MatchedFilter,
+    crlb_samples,
+    gaussian_pulse,
+    speed_of_sound_mm_s,
+)
 
 FS = 240e6 / 67
 N = 1024

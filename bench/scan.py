@@ -20,15 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
-from dmdsm.host.cli import main as dmdsm
-from dmdsm.host.db_cmd import scan_points, validate_block
-from dmdsm.host.range_cmd import calibrate_range
-from dmdsm.host.scan_plan import ScanPlan
-from dmdsm.host.scandb import read_scan
-from dmdsm.host.sensor import SensorClient
-from dmdsm.host.stage import StageClient
-from dmdsm.sim.pty_server import PtyServer
-from dmdsm.sim.runner import SimConfig, Simulation
+from dmdsm.host.commands.cli import main as dmdsm
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.links.stage import StageClient
+from dmdsm.host.ranging.procedure import calibrate_range
+from dmdsm.host.scan.points import scan_points, validate_block
+from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.scanfile import read_scan
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
 

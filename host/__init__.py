@@ -1,3 +1,60 @@
-"""The dmdsm host: device links, ranging, calibration, scanning and the `dmdsm` command."""
+"""The dmdsm host as a Python API: open the boards, calibrate, scan, reconstruct, classify.
+
+The layers, top to bottom (docs/architecture.md): `commands` (the `dmdsm` command) ->
+`report` -> `classify` -> `scan` -> `calibration` -> `ranging` -> `links` -> `files`.
+This face exports the objects a notebook composes; they load on first use, so importing
+one submodule does not import the whole pipeline.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
+
+_EXPORTS = {  # name -> subpackage that defines it
+    "SensorClient": "links", "StageClient": "links", "LinkError": "links",
+    "UnsafeMove": "links",
+    "RangingSetup": "ranging", "MatchedFilter": "ranging", "calibrate_range": "ranging",
+    "load_calibration": "calibration", "solve": "calibration", "read_raw": "calibration",
+    "center_points": "calibration", "CalibrationError": "calibration",
+    "ScanPlan": "scan", "load_plan": "scan", "run_plan": "scan", "read_scan": "scan",
+    "scan_points": "scan", "validate_block": "scan", "list_scans": "scan",
+    "predict_scan": "classify", "assemble": "classify", "fit": "classify",
+    "load_model": "classify", "save_model": "classify",
+}
+__all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literally
+    "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "RangingSetup",
+    "MatchedFilter", "calibrate_range", "load_calibration", "solve", "read_raw", "center_points",
+    "CalibrationError", "ScanPlan", "load_plan", "run_plan", "read_scan", "scan_points",
+    "validate_block", "list_scans", "predict_scan", "assemble", "fit", "load_model", "save_model",
+]
+
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __getattr__
+    from .calibration import CalibrationError, center_points, load_calibration, read_raw, solve
+    from .classify import assemble, fit, load_model, predict_scan, save_model
+    from .links import LinkError, SensorClient, StageClient, UnsafeMove
+    from .ranging import MatchedFilter, RangingSetup, calibrate_range
+    from .scan import (
+        ScanPlan,
+        list_scans,
+        load_plan,
+        read_scan,
+        run_plan,
+        scan_points,
+        validate_block,
+    )
+
+
+def __getattr__(name: str) -> object:
+    """Load an exported name from its subpackage on first use (PEP 562)."""
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

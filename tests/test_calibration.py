@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dmdsm.host.calibration import (
+from dmdsm.host.calibration.solver import (
     CalibrationData,
     CalibrationError,
     cramer_rao_bound,

@@ -10,8 +10,8 @@ import tomllib
 import numpy as np
 from test_calibration import XR, N, V, synth
 
-from dmdsm.host.center_points import front_depth_mm
-from dmdsm.host.rig_file import COLUMNS, append_rows, read_raw
+from dmdsm.host.calibration.center_points import front_depth_mm
+from dmdsm.host.calibration.rig_file import COLUMNS, append_rows, read_raw
 
 
 def write_raw(path, data, radius=0.25, drop=None):

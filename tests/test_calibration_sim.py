@@ -5,10 +5,10 @@ uncertainties match the spread over seeds, and the filament-radius bias is gone.
 import numpy as np
 import pytest
 
-from dmdsm.host.calibration import solve, tangent_errors
-from dmdsm.host.center_points import center_points
-from dmdsm.host.rig_file import COLUMNS
-from dmdsm.sim.rig_data import record
+from dmdsm.host.calibration.center_points import center_points
+from dmdsm.host.calibration.rig_file import COLUMNS
+from dmdsm.host.calibration.solver import solve, tangent_errors
+from dmdsm.sim.data.rig_data import record
 
 SEEDS = range(12)
 COORDS = ("v t1", "v t2", "n t1", "n t2", "X_R x", "X_R y")

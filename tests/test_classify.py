@@ -10,16 +10,21 @@ import h5py
 import numpy as np
 import pytest
 
-from dmdsm.host import classify
-from dmdsm.host.classify import ClassifyError, assemble, evaluate_random, per_class_accuracy
-from dmdsm.host.cli import main
-from dmdsm.host.stage import StageClient
-from dmdsm.sim.dataset import make_database, true_setup
-from dmdsm.sim.objects import bounding_size, household
-from dmdsm.sim.pty_server import PtyServer
-from dmdsm.sim.runner import SimConfig, Simulation
-from dmdsm.sim.scene import TABLE_I_V, TABLE_I_XR
-from dmdsm.sim.signals import SensorModel
+from dmdsm.host.classify import materials as classify
+from dmdsm.host.classify.materials import (
+    ClassifyError,
+    assemble,
+    evaluate_random,
+    per_class_accuracy,
+)
+from dmdsm.host.commands.cli import main
+from dmdsm.host.links.stage import StageClient
+from dmdsm.sim.data.dataset import make_database, true_setup
+from dmdsm.sim.physics.objects import bounding_size, household
+from dmdsm.sim.physics.scene import TABLE_I_V, TABLE_I_XR
+from dmdsm.sim.physics.signals import SensorModel
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 ARTIFICIAL = ("aluminium", "foam", "glass", "paper", "plastic", "steel")
 DISTINCT = ("aluminium", "foam", "glass", "paper", "steel")  # the emulator's plastic ~ apple
@@ -175,7 +180,7 @@ def test_live_prediction_through_the_emulated_sensor(name, model, tmp_path, caps
 def test_ridge_probabilities_come_from_leave_one_out_decisions():
     """The softmax temperature is fitted on leave-one-out decision values: probabilities
     follow the evidence (a fit on scikit-learn's squared errors gave ~0.5 everywhere)."""
-    from dmdsm.host.classify_ridge import CalibratedRidge
+    from dmdsm.host.classify.ridge import CalibratedRidge
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(200, 6))

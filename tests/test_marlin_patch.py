@@ -115,7 +115,7 @@ def test_script_runs_standalone_with_one_line_errors(checkout, tmp_path):
 
 
 def test_the_emulator_follows_the_settings_file(tmp_path):
-    from dmdsm.sim.marlin import MarlinEmulator, checksum
+    from dmdsm.sim.boards.marlin import MarlinEmulator, checksum
 
     changed = tmp_path / "settings.toml"
     changed.write_text(SETTINGS_PATH.read_text().replace(
@@ -132,7 +132,7 @@ def test_the_emulator_follows_the_settings_file(tmp_path):
 def test_the_host_envelope_follows_the_settings_file(tmp_path):
     import numpy as np
 
-    from dmdsm.host.safety import UnsafeMove, check_move
+    from dmdsm.host.links.safety import UnsafeMove, check_move
 
     changed = tmp_path / "settings.toml"
     changed.write_text(SETTINGS_PATH.read_text().replace(

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dmdsm.host.ranging import (
+from dmdsm.host.ranging.matched_filter import (
     MatchedFilter,
     crlb_samples,
     distance_mm,

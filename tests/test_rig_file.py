@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dmdsm.host.calibration import CalibrationError
-from dmdsm.host.rig_file import (
+from dmdsm.host.calibration.rig_file import (
     COLUMNS,
     RawWriter,
     append_rows,
@@ -18,6 +17,7 @@ from dmdsm.host.rig_file import (
     read_raw,
     steps_in,
 )
+from dmdsm.host.calibration.solver import CalibrationError
 
 finite = st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False)
 row = st.fixed_dictionaries({

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
-from dmdsm.sim.faults import parse_faults
-from dmdsm.sim.marlin import checksum
-from dmdsm.sim.runner import SimConfig, Simulation
+from dmdsm.sim.boards.marlin import checksum
+from dmdsm.sim.servers.faults import parse_faults
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 
 def gline(n, cmd):

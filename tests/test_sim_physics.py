@@ -3,9 +3,15 @@
 import numpy as np
 import pytest
 
-from dmdsm.sim.objects import HOUSEHOLD, SIZE_LIMIT_MM, bounding_size, household, rig_vertical
-from dmdsm.sim.scene import Box, Scene, SceneObject, Sphere, rodrigues, table_frame, unit
-from dmdsm.sim.signals import (
+from dmdsm.sim.physics.objects import (
+    HOUSEHOLD,
+    SIZE_LIMIT_MM,
+    bounding_size,
+    household,
+    rig_vertical,
+)
+from dmdsm.sim.physics.scene import Box, Scene, SceneObject, Sphere, rodrigues, table_frame, unit
+from dmdsm.sim.physics.signals import (
     MATERIALS,
     SensorModel,
     arrival_times_us,
@@ -116,7 +122,7 @@ def test_no_oa_on_glass_or_steel_and_no_us_on_foam():
 
 
 def test_default_noise_gives_the_papers_ranging_error_with_ideal_processing():
-    from dmdsm.sim.calibrate_noise import depth_errors, summary
+    from dmdsm.sim.physics.noise_check import depth_errors, summary
 
     s = summary(depth_errors(n_points=120, seed=5))
     assert 0.045 < s["oa"][0] < 0.075 and 0.04 < s["oa"][1] < 0.08    # paper 0.06 +/- 0.06

@@ -5,7 +5,7 @@ import os
 import pytest
 from link import Link
 
-from dmdsm.sim.qemu import QemuSensor
+from dmdsm.sim.boards.qemu import QemuSensor
 
 
 @pytest.fixture(scope="module")

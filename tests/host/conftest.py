@@ -4,8 +4,8 @@ import threading
 
 import pytest
 
-from dmdsm.sim.pty_server import PtyServer
-from dmdsm.sim.runner import SimConfig, Simulation
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 
 class Running:

@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from dmdsm.host.rig_file import read_raw
-from dmdsm.host.stage import StageClient
-from dmdsm.sim.objects import rig_horizontal, rig_vertical
-from dmdsm.sim.scene import table_frame
+from dmdsm.host.calibration.rig_file import read_raw
+from dmdsm.host.links.stage import StageClient
+from dmdsm.sim.physics.objects import rig_horizontal, rig_vertical
+from dmdsm.sim.physics.scene import table_frame
 
 CMD = [sys.executable, "-m", "dmdsm.host"]
 
@@ -92,8 +92,8 @@ def test_calibration_procedure_recovers_table_i_end_to_end(emulator, tmp_path):
 
 
 def test_lost_sensor_stops_the_step_and_keeps_the_points(emulator, tmp_path):
-    from dmdsm.host.range_cal import RangeCal, RangingSetup
-    from dmdsm.host.ranging import gaussian_pulse
+    from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
+    from dmdsm.host.ranging.matched_filter import gaussian_pulse
 
     emu = emulator(speed=5.0, scene="aluminium_block", seed=4)
     fs = 240e6 / 67

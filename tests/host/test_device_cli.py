@@ -7,7 +7,7 @@ import sys
 import h5py
 import numpy as np
 
-from dmdsm.host.safety import TABLE_I, KeepOut, UnsafeMove, check_move
+from dmdsm.host.links.safety import TABLE_I, KeepOut, UnsafeMove, check_move
 from dmdsm.marlin_patch import load_machine
 
 

@@ -6,9 +6,10 @@ import sys
 
 import numpy as np
 
-from dmdsm.host.range_cmd import calibrate_range, gate_for, range_waveforms
-from dmdsm.host.sensor import SensorClient
-from dmdsm.host.stage import StageClient
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.links.stage import StageClient
+from dmdsm.host.ranging.calibrate import gate_for, range_waveforms
+from dmdsm.host.ranging.procedure import calibrate_range
 
 
 def test_calibrated_ranging_reproduces_the_truth_within_the_papers_budget(emulator):
@@ -44,7 +45,7 @@ def test_calibrated_ranging_reproduces_the_truth_within_the_papers_budget(emulat
 
 
 def test_glass_gives_no_oa_distance(emulator):
-    from dmdsm.host.ranging import MatchedFilter, gaussian_pulse
+    from dmdsm.host.ranging.matched_filter import MatchedFilter, gaussian_pulse
     emu = emulator(speed=3.0, scene="glass_jar", seed=5)
     st, sc = StageClient(emu.stage), SensorClient(emu.sensor)
     st.home()

@@ -11,11 +11,11 @@ import time
 import numpy as np
 import pytest
 
-from dmdsm.host.db_cmd import scan_points, validate_block
-from dmdsm.host.scandb import read_scan
-from dmdsm.host.stage import StageClient
-from dmdsm.sim.objects import aluminium_block, rig_horizontal, rig_vertical
-from dmdsm.sim.scene import table_frame
+from dmdsm.host.links.stage import StageClient
+from dmdsm.host.scan.points import scan_points, validate_block
+from dmdsm.host.scan.scanfile import read_scan
+from dmdsm.sim.physics.objects import aluminium_block, rig_horizontal, rig_vertical
+from dmdsm.sim.physics.scene import table_frame
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}  # e mean, std (mm), paper §V-A2
 
@@ -190,8 +190,8 @@ def test_unsafe_plans_are_refused_before_the_stage_moves(emulator, tmp_path, cha
     cal.write_text(f"[calibration]\nv = {s.v.tolist()}\nn = {s.n.tolist()}\n"
                    f"X_R = {s.X_R.tolist()}\n")
     ranging = tmp_path / "ranging.json"
-    from dmdsm.host.range_cal import RangeCal, RangingSetup
-    from dmdsm.host.ranging import gaussian_pulse
+    from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
+    from dmdsm.host.ranging.matched_filter import gaussian_pulse
     fs = 240e6 / 67
     RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
                  {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(ranging)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from dmdsm.host.sensor import SensorClient, SensorError
-from dmdsm.host.transport import LinkError
+from dmdsm.host.links.sensor import SensorClient, SensorError
+from dmdsm.host.links.transport import LinkError
 from dmdsm.protocol import FrameDecoder
 
 

@@ -4,9 +4,9 @@ import time
 
 import pytest
 
-from dmdsm.host.stage import StageClient, StageError
-from dmdsm.host.transport import LinkError
-from dmdsm.sim.marlin_gcode import parse_words
+from dmdsm.host.links.stage import StageClient, StageError
+from dmdsm.host.links.transport import LinkError
+from dmdsm.sim.boards.marlin_gcode import parse_words
 
 
 def test_home_move_where(emulator):

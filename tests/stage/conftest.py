@@ -6,8 +6,8 @@ import threading
 import pytest
 from stage_link import StageLink
 
-from dmdsm.sim.pty_server import PtyServer
-from dmdsm.sim.runner import SimConfig, Simulation
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 SPEED = 20.0  # simulated seconds per wall second for the emulator
 

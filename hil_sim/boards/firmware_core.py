@@ -1,0 +1,112 @@
+"""ctypes binding of the PC build of the sensor firmware core (firmware/stm32/board/pc)."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+LIB_PATH = REPO / "firmware/stm32/build/pc/libdmdsm_core.so"
+
+
+class FirmwareBuildError(RuntimeError):
+    """The PC build of the firmware core is missing and could not be built."""
+
+
+class SetConfig(ctypes.Structure):
+    """struct dmdsm_set_config from protocol/c/dmdsm_spec.h."""
+
+    _fields_ = [("n_samples", ctypes.c_uint16), ("sample_rate_div", ctypes.c_uint16),
+                ("n_average", ctypes.c_uint16), ("pretrigger", ctypes.c_uint16),
+                ("trigger_edge", ctypes.c_uint8), ("modality", ctypes.c_uint8),
+                ("sample_format", ctypes.c_uint8), ("trigger_timeout_ms", ctypes.c_uint32)]
+
+
+def _load() -> ctypes.CDLL:
+    path = Path(os.environ.get("DMDSM_CORE_LIB", LIB_PATH))
+    if not path.exists():
+        if not (REPO / "firmware/stm32/Makefile").exists():
+            raise FirmwareBuildError(f"{path} not found; set DMDSM_CORE_LIB to the library")
+        r = subprocess.run(["make", "-s", "-C", str(REPO / "firmware/stm32"), "BOARD=pc"],
+                           capture_output=True, text=True)
+        if r.returncode or not path.exists():
+            raise FirmwareBuildError(f"building the firmware core for the PC failed: "
+                                     f"{r.stderr.strip().splitlines()[-1:] or r.returncode}")
+    lib = ctypes.CDLL(str(path))
+    p, u8, u16, u32 = ctypes.c_void_p, ctypes.c_uint8, ctypes.c_uint16, ctypes.c_uint32
+    buf = ctypes.c_char_p
+    lib.dmdsm_pc_new.restype = p
+    lib.dmdsm_pc_new.argtypes = [ctypes.c_char_p, u32, u32, u16, u32]
+    lib.dmdsm_pc_free.argtypes = [p]
+    lib.dmdsm_pc_set_ticks.argtypes = [p, u32]
+    lib.dmdsm_pc_rx.argtypes = [p, buf, ctypes.c_size_t]
+    lib.dmdsm_pc_tx.argtypes = [p, p, ctypes.c_size_t]
+    lib.dmdsm_pc_tx.restype = ctypes.c_size_t
+    lib.dmdsm_pc_armed.argtypes = [p, ctypes.POINTER(SetConfig)]
+    lib.dmdsm_pc_capture.argtypes = [p, p, u32, u16, ctypes.c_int]
+    lib.dmdsm_pc_poll.argtypes = [p]
+    lib.dmdsm_pc_state.argtypes = [p]
+    lib.dmdsm_pc_state.restype = u8
+    return lib
+
+
+class FirmwareCore:
+    """One emulated sensor board running the real firmware core; the caller owns time, physics."""
+
+    _lib: ctypes.CDLL | None = None
+
+    def __init__(self, name: str = "SIL", tick_hz: int = 240_000_000,
+                 adc_rate_hz: int = 3_600_000, max_samples: int = 8192) -> None:
+        if FirmwareCore._lib is None:
+            FirmwareCore._lib = _load()
+        self._l = FirmwareCore._lib
+        self.tick_hz = tick_hz
+        self._dev = self._l.dmdsm_pc_new(name.encode(), tick_hz, adc_rate_hz, max_samples, 0)
+        if not self._dev:
+            raise MemoryError("dmdsm_pc_new failed")
+        self._txbuf = ctypes.create_string_buffer(1 << 16)
+
+    def close(self) -> None:
+        """Free the device."""
+        if getattr(self, "_dev", None):
+            self._l.dmdsm_pc_free(self._dev)
+            self._dev = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def set_ticks(self, ticks: int) -> None:
+        """Set the device's 32-bit tick counter (wraps) and run its main loop once."""
+        self._l.dmdsm_pc_set_ticks(self._dev, ticks & 0xFFFFFFFF)
+
+    def rx(self, data: bytes) -> None:
+        """Bytes from the host."""
+        self._l.dmdsm_pc_rx(self._dev, data, len(data))
+
+    def tx(self, max_bytes: int = 1 << 16) -> bytes:
+        """Up to max_bytes the device sends (the link model decides how many per step)."""
+        n = self._l.dmdsm_pc_tx(self._dev, self._txbuf, min(max_bytes, len(self._txbuf)))
+        return self._txbuf.raw[:n]
+
+    def armed(self) -> dict | None:
+        """The burst configuration if the core waits for a laser edge, else None."""
+        cfg = SetConfig()
+        if not self._l.dmdsm_pc_armed(self._dev, ctypes.byref(cfg)):
+            return None
+        return {name: getattr(cfg, name) for name, _ in SetConfig._fields_}
+
+    def capture(self, samples: np.ndarray, edge_ticks: int, phase_ticks: int = 0,
+                overrun: bool = False) -> None:
+        """Deliver one burst (n_samples u16 ADC counts) for an edge at edge_ticks."""
+        s = np.ascontiguousarray(samples, dtype=np.uint16)
+        self._l.dmdsm_pc_capture(self._dev, s.ctypes.data, edge_ticks & 0xFFFFFFFF,
+                                 phase_ticks, int(overrun))
+
+    @property
+    def state(self) -> int:
+        """Acquisition state (enum state of the spec)."""
+        return self._l.dmdsm_pc_state(self._dev)

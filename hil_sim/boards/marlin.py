@@ -1,0 +1,224 @@
+"""Marlin stage-board emulator: the patched Marlin's serial dialect (docs/marlin.md) over bytes.
+
+Driven by simulated time: `receive(data, now)` takes bytes from the host into a 128-byte RX
+ring (bytes that do not fit are lost, as on the ATmega2560), `step(now)` runs the main loop
+and returns what the board sends. Lines are checked (N…*checksum), queued into BUFSIZE slots
+and executed in order; moves go to the trapezoidal planner of `motion.py`. Settings come from
+firmware/marlin_patch/chiron_turntable.toml, like the real firmware's.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmdsm.marlin_patch import MachineLimits, load_machine
+
+from .marlin_gcode import FIRMWARE_NAME, GcodeMixin
+from .motion import Planner
+
+
+@dataclass
+class StageFaults:
+    """Stage-side faults: probabilities per line/command, extra busy seconds."""
+
+    lost_ok: float = 0.0          # an `ok` is not sent
+    spurious_resend: float = 0.0  # a good line is reported as corrupt and asked again
+    busy_extra_s: float = 0.0     # blocking commands (G28, M400, G4) take this much longer
+
+
+def checksum(line: str) -> int:
+    """Marlin's checksum: XOR of every byte before '*'."""
+    c = 0
+    for b in line.encode():
+        c ^= b
+    return c
+
+
+class MarlinEmulator(GcodeMixin):
+    """One emulated Chiron stage board (Marlin with the turntable as axis A)."""
+
+    def __init__(self, limits: MachineLimits | None = None, seed: int = 0,
+                 faults: StageFaults | None = None) -> None:
+        self.limits = limits or load_machine()
+        self.faults = faults or StageFaults()
+        self.rng = random.Random(seed)
+        self.reset(0.0)
+
+    # ------------------------------------------------------------------ state
+    def reset(self, now: float) -> None:
+        """Hardware reset: everything lost, boot banner sent."""
+        n = len(self.limits.axes)
+        self.planner = Planner(self.limits)
+        self.rx = bytearray()
+        self.line = bytearray()
+        self.queue: list[tuple[str, int | None]] = []  # (command, line number or None)
+        self.out: list[str] = []
+        self.last_n = 0
+        self.killed = False
+        self.relative = False
+        self.feed_mm_s = 50.0
+        self.current = np.zeros(n)  # logical position of the last queued move (mm, deg)
+        self.offset = np.zeros(n)   # logical - raw (G92)
+        self.homed = [False] * n
+        self.blocking: dict | None = None  # the command in progress that holds the queue
+        self.auto_report_s = 0.0
+        self.next_report = 0.0
+        self.emergency = bytearray()
+        self.executed: list[tuple[int | None, str]] = []  # ground truth: (N, command) in order
+        self.now = now
+        self.out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Last Updated: 2024-10-21",
+                     "echo:Compiled for the Anycubic Chiron with a turntable on axis A"]
+
+    def position(self) -> np.ndarray:
+        """Ground truth: where the stage is now (mm, deg), in raw machine coordinates."""
+        self.planner.update(self.now)
+        return self.planner.position()
+
+    # ------------------------------------------------------------------ bytes in/out
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes from the host; the emergency parser sees them at once."""
+        self._run(now)
+        for b in data:
+            self._emergency(b, now)
+            if len(self.rx) < self.limits.rx_buffer_size:
+                self.rx.append(b)
+        self._run(now)
+
+    def step(self, now: float) -> bytes:
+        """Run the main loop up to `now` (s); returns the bytes the board sends."""
+        self._run(now)
+        data = "".join(line + "\n" for line in self.out).encode()
+        self.out.clear()
+        return data
+
+    def _run(self, now: float) -> None:
+        self.now = max(self.now, now)
+        if not self.killed:
+            self.planner.update(self.now)
+            for _ in range(64):  # bounded work per call
+                if self.blocking is not None and not self._blocking_done():
+                    break
+                self._read_serial()
+                if not self.queue:
+                    break
+                cmd, n = self.queue.pop(0)
+                self._execute(cmd, n)
+            if self.auto_report_s and self.now >= self.next_report:
+                self.out.append(self._position_line())
+                self.next_report = self.now + self.auto_report_s
+
+    def _emergency(self, b: int, now: float) -> None:
+        """M112 / M410 act as soon as their bytes arrive, before the queue sees them."""
+        if b in (10, 13):
+            word = self.emergency.decode(errors="replace").strip()
+            if word.startswith("N"):
+                word = word.split(" ", 1)[1] if " " in word else ""
+            word = word.split("*")[0].strip()
+            if word == "M112" and not self.killed:
+                self.out += ["echo:M112 Shutdown", "Error:Printer halted. kill() called!",
+                             "//action:poweroff"]
+                self.killed = True
+            elif word == "M410" and not self.killed:
+                self.planner.quick_stop(now)
+                self._sync_current_from_steppers()
+            self.emergency.clear()
+        elif len(self.emergency) < 16:
+            self.emergency.append(b)
+
+    # ------------------------------------------------------------------ line protocol
+    def _read_serial(self) -> None:
+        """Move complete lines from the RX ring into free command slots (Marlin's get_serial)."""
+        while self.rx and len(self.queue) < self.limits.bufsize:
+            b = self.rx.pop(0)
+            if b not in (10, 13):
+                if len(self.line) < self.limits.max_cmd_size - 1:
+                    self.line.append(b)
+                continue
+            text = self.line.decode(errors="replace").split(";")[0].strip()
+            self.line.clear()
+            if text:
+                self._accept(text)
+
+    def _line_error(self, message: str) -> None:
+        self.out.append(f"Error:{message}, Last Line: {self.last_n}")
+        self.rx.clear()  # flush_and_request_resend
+        self.line.clear()
+        self.out += [f"Resend: {self.last_n + 1}", "ok"]
+
+    def _accept(self, text: str) -> None:
+        n = None
+        if text.startswith("N"):
+            head, _, rest = text[1:].partition(" ")
+            try:
+                n = int(head)
+            except ValueError:
+                n = None
+            body = text.split("*")[0]
+            is_m110 = "M110" in body
+            if n is None:
+                self._line_error("Line Number is not Last Line Number+1")
+                return
+            if n != self.last_n + 1 and not is_m110:
+                if n in (self.last_n, self.last_n - 1):
+                    return  # a duplicate: dropped without an ok, as Marlin does
+                self._line_error("Line Number is not Last Line Number+1")
+                return
+            if "*" not in text:
+                self._line_error("No Checksum with line number")
+                return
+        if "*" in text:
+            body, _, cs = text.rpartition("*")
+            try:
+                ok = int(cs) == checksum(body)
+            except ValueError:
+                ok = False
+            if not ok:
+                self._line_error("checksum mismatch")
+                return
+            text = body
+        if n is not None and self.faults.spurious_resend and \
+                self.rng.random() < self.faults.spurious_resend:
+            self._line_error("checksum mismatch")
+            return
+        if n is not None:
+            self.last_n = n
+            text = text.split(" ", 1)[1] if " " in text else ""
+        self.queue.append((text.strip(), n))
+
+    def _ok(self, n: int | None) -> None:
+        if self.faults.lost_ok and self.rng.random() < self.faults.lost_ok:
+            return
+        free_p = self.limits.block_buffer_size - len(self.planner.queue) - 1
+        free_b = self.limits.bufsize - len(self.queue)
+        self.out.append(f"ok{f' N{n}' if n is not None else ''} P{max(free_p, 0)} B{free_b}")
+
+    # ------------------------------------------------------------------ blocking commands
+    def _block(self, kind: str, until: float, n: int | None, **extra: object) -> None:
+        """Hold the queue until `until` (s), sending busy lines meanwhile."""
+        self.blocking = {"kind": kind, "until": until + self.faults.busy_extra_s, "n": n,
+                         "busy_at": self.now + self.limits.keepalive_interval_s, **extra}
+
+    def _blocking_done(self) -> bool:
+        b = self.blocking
+        assert b is not None
+        if b["kind"] == "move":  # waiting for a free planner block
+            if self.planner.free_blocks() <= 0:
+                return self._busy(b)
+            self.planner.add(self.now, *b["args"])
+        elif b["kind"] == "sync":  # M400 / G4 / G28: wait for time to pass
+            if self.now < max(b["until"], self.planner.busy_until(self.now)):
+                return self._busy(b)
+            if b.get("then"):
+                b["then"]()
+        self.blocking = None
+        self._ok(b["n"])
+        return True
+
+    def _busy(self, b: dict) -> bool:
+        while self.now >= b["busy_at"]:
+            self.out.append("echo:busy: processing")
+            b["busy_at"] += self.limits.keepalive_interval_s
+        return False

@@ -1,0 +1,117 @@
+"""Sensor-board emulator: the real firmware core (PC build) fed by a simulated laser and ADC.
+
+The laser fires at `rep_rate_hz`; for every shot while the core is armed, the physics computes
+the waveform for the stage pose at that instant, sampled with a random start phase (which the
+core reports as the trigger phase), and the core averages, frames and queues it. The link to
+the host carries `link_bytes_per_s` (2 Mbaud 8N1 by default), so a slow link drops shots on
+the device exactly as on hardware.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+
+import numpy as np
+
+from ..physics.scene import Hit, Scene
+from ..physics.signals import SensorModel, synthesize, to_adc
+from .firmware_core import FirmwareCore
+
+TICK_HZ = 240_000_000
+ADC_RATE_HZ = TICK_HZ / 67  # the NUCLEO's paced rate (docs/firmware.md)
+
+Pose = Callable[[float], tuple[np.ndarray, float]]  # time (s) -> (S in mm, theta in deg)
+
+
+class SensorBoard:
+    """One emulated NUCLEO: firmware core + laser + physics + link pacing."""
+
+    def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
+                 seed: int = 0, rep_rate_hz: float = 1000.0,
+                 link_bytes_per_s: float = 200_000.0, max_samples: int = 8192,
+                 frozen_noise: bool = False) -> None:
+        self.scene = scene
+        self.pose = pose
+        self.model = model or SensorModel()
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)
+        self.rep_rate_hz = rep_rate_hz
+        self.link_bytes_per_s = link_bytes_per_s
+        self.core = FirmwareCore(name="SIL sensor board (hil_sim)", tick_hz=TICK_HZ,
+                                 adc_rate_hz=int(ADC_RATE_HZ), max_samples=max_samples)
+        self.now = 0.0
+        self.next_shot = 0.0
+        self.link_credit = 0.0
+        self.link_blocked = False  # the host side cannot take more (pty full): back-pressure
+        self.shots = 0
+        self._hit_cache: tuple[tuple, Hit] | None = None
+        # frozen noise: every arm draws from a generator seeded by (seed, pose, config), so
+        # measuring a pose again gives the same waveforms (exact regression comparisons)
+        self.frozen_noise = frozen_noise
+        self._in_arm = False
+
+    def _ticks(self, t: float) -> int:
+        return int(round(t * TICK_HZ)) & 0xFFFFFFFF
+
+    def hit(self, t: float) -> Hit:
+        """What the beam sees at time t (cached while the pose does not change)."""
+        S, theta = self.pose(t)
+        key = (tuple(np.round(S, 6)), round(theta, 6))
+        if self._hit_cache is None or self._hit_cache[0] != key:
+            self._hit_cache = (key, self.scene.cast(np.asarray(S), theta))
+        return self._hit_cache[1]
+
+    def _fire(self, t: float, cfg: dict) -> None:
+        fs = ADC_RATE_HZ / cfg["sample_rate_div"]
+        period_ticks = int(round(TICK_HZ / fs))
+        phase = int(self.rng.integers(1, period_ticks + 1))  # edge to first sample (ticks)
+        k = np.arange(cfg["n_samples"]) - cfg["pretrigger"]
+        t_us = (k / fs + phase / TICK_HZ) * 1e6
+        x = synthesize(self.hit(t), self.model, t_us, self.rng, self.seed)
+        self.core.set_ticks(self._ticks(t))
+        self.core.capture(to_adc(x, self.model), self._ticks(t), phase)
+        self.shots += 1
+
+    def _reseed(self, t: float, cfg: dict) -> None:
+        S, theta = self.pose(t)
+        key = f"{self.seed}:{np.round(S, 4).tolist()}:{round(theta, 4)}:{sorted(cfg.items())}"
+        h = hashlib.blake2b(key.encode(), digest_size=8).digest()
+        self.rng = np.random.default_rng(int.from_bytes(h, "little"))
+
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes from the host arrive at time now (s)."""
+        self.step_to(now)
+        self.core.rx(data)
+
+    def step_to(self, now: float) -> None:
+        """Fire every laser shot up to `now` (s)."""
+        period = 1.0 / self.rep_rate_hz
+        if self.core.armed() is None:  # idle: the laser fires but nothing samples it
+            self._in_arm = False
+            self.next_shot = max(self.next_shot, now - now % period + period)
+        fired = 0
+        while self.next_shot <= now and fired < 100_000:
+            cfg = self.core.armed()
+            if cfg is not None:
+                if self.frozen_noise and not self._in_arm:
+                    self._reseed(self.next_shot, cfg)
+                self._in_arm = True
+                self._fire(self.next_shot, cfg)
+            else:
+                self._in_arm = False
+            self.next_shot += period
+            fired += 1
+        self.now = max(self.now, now)
+        self.core.set_ticks(self._ticks(self.now))
+
+    def step(self, now: float) -> bytes:
+        """Advance to `now` and return what the link carries to the host meanwhile."""
+        dt = max(0.0, now - self.now)
+        self.step_to(now)
+        burst = 0.005 * self.link_bytes_per_s + 64  # a UART does not save up idle time
+        self.link_credit = min(self.link_credit + dt * self.link_bytes_per_s, burst)
+        n = 0 if self.link_blocked else int(self.link_credit)
+        data = self.core.tx(n) if n > 0 else b""
+        self.link_credit -= len(data)
+        return data

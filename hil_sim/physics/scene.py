@@ -1,0 +1,218 @@
+"""Scene geometry: turntable pose (n, X_R), beam X = S + d v (eq. 1), shapes and the ray cast.
+
+All lengths in mm, angles in degrees at the interface. Objects are defined in the turntable
+frame (origin at the table centre X_R, z along the normal n) and turn with the table angle
+theta about n (eq. 5). The beam is a finite spot sampled by a fixed pattern of parallel rays,
+so a thin filament returns a response whose strength grows with the overlap (paper Fig. 2).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Table I of the paper: beam direction, turntable normal, turntable centre (mm)
+TABLE_I_V = np.array([0.0656, 0.9955, -0.0678])
+TABLE_I_N = np.array([-0.0007, 0.0022, 0.9999])
+TABLE_I_XR = np.array([235.21, 288.17, 0.00])
+
+
+def unit(x: np.ndarray) -> np.ndarray:
+    """x / |x|."""
+    x = np.asarray(x, dtype=float)
+    return x / np.linalg.norm(x)
+
+
+def skew(n: np.ndarray) -> np.ndarray:
+    """[n]x, the cross-product matrix."""
+    return np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+
+
+def rodrigues(n: np.ndarray, theta_rad: float) -> np.ndarray:
+    """R_n(theta) = I + sin(theta)[n]x + (1 - cos(theta))[n]x^2 (paper eq. 5)."""
+    k = skew(unit(n))
+    return np.eye(3) + np.sin(theta_rad) * k + (1 - np.cos(theta_rad)) * (k @ k)
+
+
+def table_frame(n: np.ndarray) -> np.ndarray:
+    """3x3 rotation whose columns are the turntable frame's x, y, z (z = n) in {0}."""
+    z = unit(n)
+    x = unit(np.cross([0.0, 1.0, 0.0], z))  # table x roughly along world x
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+# ---------------------------------------------------------------- shapes (local frames)
+@dataclass
+class Shape(ABC):
+    """A solid in its own frame: `center` and rotation `R` place it in the turntable frame."""
+
+    center: np.ndarray
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    @abstractmethod
+    def local_hit(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Entry distance (inf for a miss) and outward normal per ray, in the local frame."""
+
+
+@dataclass
+class Box(Shape):
+    """Axis-aligned box in its frame, half sizes `half` (mm)."""
+
+    half: np.ndarray = field(default_factory=lambda: np.ones(3))
+
+    def local_hit(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / d
+            t1 = (-self.half - o) * inv
+            t2 = (self.half - o) * inv
+        tmin = np.nan_to_num(np.minimum(t1, t2), nan=-np.inf)
+        tmax = np.nan_to_num(np.maximum(t1, t2), nan=np.inf)
+        t_enter = tmin.max(axis=1)
+        t_exit = tmax.min(axis=1)
+        hit = (t_enter <= t_exit) & (t_enter > 0)
+        axis = tmin.argmax(axis=1)
+        normal = np.zeros_like(o)
+        normal[np.arange(len(o)), axis] = -np.sign(d[np.arange(len(o)), axis])
+        return np.where(hit, t_enter, np.inf), normal
+
+
+@dataclass
+class Cylinder(Shape):
+    """Capped cylinder along its local z: radius and half length (mm)."""
+
+    radius: float = 1.0
+    half_length: float = 1.0
+
+    def local_hit(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = d[:, 0] ** 2 + d[:, 1] ** 2
+        b = 2 * (o[:, 0] * d[:, 0] + o[:, 1] * d[:, 1])
+        c = o[:, 0] ** 2 + o[:, 1] ** 2 - self.radius ** 2
+        disc = b * b - 4 * a * c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_side = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
+        z_side = o[:, 2] + t_side * d[:, 2]
+        side_ok = (disc >= 0) & (a > 1e-15) & (t_side > 0) & (np.abs(z_side) <= self.half_length)
+        t_side = np.where(side_ok, t_side, np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_cap = (-np.sign(d[:, 2]) * self.half_length - o[:, 2]) / d[:, 2]
+        p = o + t_cap[:, None] * d
+        cap_ok = (t_cap > 0) & (p[:, 0] ** 2 + p[:, 1] ** 2 <= self.radius ** 2)
+        t_cap = np.where(cap_ok, t_cap, np.inf)
+        t = np.minimum(t_side, t_cap)
+        p = o + np.where(np.isfinite(t), t, 0)[:, None] * d
+        normal = np.column_stack([p[:, 0], p[:, 1], np.zeros(len(o))])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        cap_n = np.column_stack([np.zeros(len(o)), np.zeros(len(o)), -np.sign(d[:, 2])])
+        normal = np.where((t_cap <= t_side)[:, None], cap_n, normal)
+        return t, normal
+
+
+@dataclass
+class Sphere(Shape):
+    """Sphere of `radius` (mm) about its centre."""
+
+    radius: float = 1.0
+
+    def local_hit(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        b = np.einsum("ij,ij->i", o, d)
+        c = np.einsum("ij,ij->i", o, o) - self.radius ** 2
+        disc = b * b - c
+        t = -b - np.sqrt(np.maximum(disc, 0))
+        ok = (disc >= 0) & (t > 0)
+        t = np.where(ok, t, np.inf)
+        p = o + np.where(ok, t, 0)[:, None] * d
+        return t, p / self.radius
+
+
+@dataclass
+class SceneObject:
+    """A shape of one material standing on the turntable; `name` identifies it."""
+
+    name: str
+    material: str
+    shape: Shape
+
+
+@dataclass
+class Hit:
+    """What one laser shot sees, nearest return first: mean distance of its rays (mm), their
+    share of the spot 0..1, cos of the incidence angle, the material hit (or None); deeper
+    returns of the same object in `later`."""
+
+    d: float
+    overlap: float
+    cos_incidence: float
+    material: str | None
+    obj: str | None
+    local: np.ndarray | None = None  # mean hit point in the object's own frame (mm)
+    later: list[Hit] = field(default_factory=list)  # returns from deeper in the spot
+
+
+RETURN_MM = 0.3  # depth spread within the spot that still arrives as one pulse (mm)
+SPOT = np.array([[0.0, 0.0]] + [[np.cos(a), np.sin(a)] for a in np.arange(6) * np.pi / 3]
+                + [[2 * np.cos(a), 2 * np.sin(a)] for a in (np.arange(12) + 0.5) * np.pi / 6]) / 2
+
+
+@dataclass
+class Scene:
+    """Turntable pose, beam direction and the objects on the table."""
+
+    v: np.ndarray = field(default_factory=lambda: TABLE_I_V.copy())
+    n: np.ndarray = field(default_factory=lambda: TABLE_I_N.copy())
+    X_R: np.ndarray = field(default_factory=lambda: TABLE_I_XR.copy())
+    objects: list[SceneObject] = field(default_factory=list)
+    spot_radius: float = 0.25  # mm, laser spot radius at the target
+
+    def cast(self, S: np.ndarray, theta_deg: float, max_d: float = 200.0) -> Hit:
+        """Ray-cast the beam from sensor position S (mm) with the table at theta (deg)."""
+        v = unit(self.v)
+        basis = table_frame(self.n)
+        rot = rodrigues(self.n, np.radians(theta_deg)) @ basis  # table frame after turning
+        e1 = unit(np.cross(v, [0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.cross(v, [1, 0, 0]))
+        e2 = np.cross(v, e1)
+        origins = np.asarray(S, float) + self.spot_radius * (SPOT[:, :1] * e1 + SPOT[:, 1:] * e2)
+        best = np.full(len(origins), np.inf)
+        normals = np.zeros((len(origins), 3))
+        owner = np.full(len(origins), -1)
+        local = np.zeros((len(origins), 3))
+        for k, obj in enumerate(self.objects):
+            to_local = rot @ obj.shape.R  # local -> world rotation
+            center = self.X_R + rot @ obj.shape.center
+            o = (origins - center) @ to_local
+            d = np.tile(v @ to_local, (len(origins), 1))
+            t, nl = obj.shape.local_hit(o, d)
+            closer = t < best
+            best = np.where(closer, t, best)
+            normals = np.where(closer[:, None], nl @ to_local.T, normals)
+            owner = np.where(closer, k, owner)
+            local = np.where(closer[:, None], o + np.where(np.isfinite(t), t, 0)[:, None] * d,
+                             local)
+        hit = np.isfinite(best) & (best < max_d)
+        if not hit.any():
+            return Hit(np.inf, 0.0, 0.0, None, None)
+        k = np.bincount(owner[hit]).argmax()
+        sel = hit & (owner == k)
+        # rays whose distances lie within RETURN_MM of each other make one return at their
+        # mean distance; a spot spread over depth (a tip seen with its grazing side, a face
+        # and the one behind it) makes separate returns, nearest first
+        rank = np.floor((best - best[sel].min()) / RETURN_MM)
+        returns = []
+        for b in np.unique(rank[sel]):
+            r = sel & (rank == b)
+            cos_i = float(np.clip(np.mean(np.abs(normals[r] @ v)), 0, 1))
+            returns.append(Hit(float(best[r].mean()), float(r.mean()), cos_i,
+                               self.objects[k].material, self.objects[k].name,
+                               local[r].mean(axis=0)))
+        returns[0].later = returns[1:]
+        return returns[0]
+
+
+def hash_noise(key: str, sigma: float, size: int, seed: int) -> np.ndarray:
+    """A fixed pseudo-random offset for a key: repeatable per position, not per read."""
+    if sigma == 0:
+        return np.zeros(size)
+    h = hashlib.blake2b(f"{seed}:{key}".encode(), digest_size=8).digest()
+    return np.random.default_rng(int.from_bytes(h, "little")).normal(0, sigma, size)

@@ -1,0 +1,155 @@
+"""Both emulated boards behind pseudo-terminals, simulated time tied to the wall clock."""
+
+from __future__ import annotations
+
+import os
+import select
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+
+from ..physics.objects import SCENES
+from .runner import Simulation
+
+MAX_PENDING = 1 << 20  # bytes kept for a host that does not read; older output is dropped
+
+
+class Port:
+    """One pseudo-terminal; the emulator keeps the slave open so a host may come and go."""
+
+    def __init__(self, name: str, link_dir: Path | None) -> None:
+        self.name = name
+        self.link = link_dir / name if link_dir else None
+        self.pending = bytearray()
+        self.down_until = 0.0
+        self.open()
+
+    def open(self) -> None:
+        """Create the pty (and point the stable symlink at it)."""
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        if self.link is not None:
+            tmp = self.link.with_suffix(".tmp")
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(self.path)
+            tmp.replace(self.link)
+
+    def close(self) -> None:
+        """Close both ends: an open host connection sees the port vanish."""
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.master = self.slave = -1
+
+    @property
+    def name_for_host(self) -> str:
+        """What the host opens: the stable symlink if any, else /dev/pts/N."""
+        return str(self.link) if self.link else self.path
+
+
+class PtyServer:
+    """Serves a Simulation on two ptys until stop() (or Ctrl-C in `dmdsm sim`)."""
+
+    def __init__(self, sim: Simulation, speed: float = 1.0, link_dir: str | None = None) -> None:
+        self.sim = sim
+        self.speed = speed
+        d = Path(link_dir) if link_dir else None
+        if d:
+            d.mkdir(parents=True, exist_ok=True)
+        self.ports = {name: Port(name, d) for name in ("sensor", "stage")}
+        self._stop = threading.Event()
+        self.lock = threading.Lock()  # held while the simulation steps (truth() readers)
+        # what a user does by hand on the real machine: `echo rig_vertical > DIR/scene`
+        self.scene_file = d / "scene" if d else None
+        self._scene_mtime = 0.0
+        self._scene_check = 0.0
+        if self.scene_file is not None:  # the file names what is mounted now
+            self.scene_file.write_text(sim.cfg.scene + "\n")
+            self._scene_mtime = self.scene_file.stat().st_mtime
+
+    def mount(self, objects: list) -> None:
+        """Put other objects on the turntable (the user re-mounting the rig or an object)."""
+        with self.lock:
+            self.sim.scene.objects = list(objects)
+            self.sim.sensor._hit_cache = None
+
+    def _watch_scene(self) -> None:
+        """Mount the scene named in DIR/scene when the file changes (checked every 0.2 s)."""
+        now = time.monotonic()
+        if self.scene_file is None or now - self._scene_check < 0.2:
+            return
+        self._scene_check = now
+        try:
+            mtime = self.scene_file.stat().st_mtime
+        except OSError:
+            return
+        if mtime == self._scene_mtime:
+            return
+        self._scene_mtime = mtime
+        name = self.scene_file.read_text().strip()
+        if name not in SCENES:
+            print(f"dmdsm sim: unknown scene {name!r} in {self.scene_file}; known: "
+                  f"{', '.join(SCENES)}", file=sys.stderr)
+            return
+        self.mount(SCENES[name]())
+        print(f"dmdsm sim: mounted {name}", file=sys.stderr)
+
+    def stop(self) -> None:
+        """Ask serve_forever to return."""
+        self._stop.set()
+
+    def serve_forever(self) -> None:
+        """Pump bytes between the ptys and the simulation in (scaled) real time."""
+        wall0, sim0 = time.monotonic(), self.sim.t
+        while not self._stop.is_set():
+            self._watch_scene()
+            fds = [p.master for p in self.ports.values() if p.master >= 0]
+            readable, _, _ = select.select(fds, [], [], 0.001)
+            with self.lock:
+                for p in self.ports.values():
+                    if p.master in readable:
+                        try:
+                            data = os.read(p.master, 65536)
+                        except OSError:
+                            data = b""
+                        if data:
+                            self.sim.write(p.name, data)
+                target = sim0 + (time.monotonic() - wall0) * self.speed
+                left = min(max(target - self.sim.t, 0.0), 0.05)
+                while True:  # advance in short chunks and pump the ptys between them
+                    # a full pty holds the device's transmitter, as USB flow control would
+                    self.sim.sensor.link_blocked = len(self.ports["sensor"].pending) > 65536
+                    dt = min(left, 0.005)
+                    if dt > 0:
+                        self.sim.advance(dt)
+                    for p in self.ports.values():
+                        self._pump_out(p, dt)
+                    left -= dt
+                    if left <= 1e-9:
+                        break
+
+    def _pump_out(self, p: Port, dt: float) -> None:
+        p.pending += self.sim.read(p.name)
+        if len(p.pending) > MAX_PENDING:
+            del p.pending[:len(p.pending) - MAX_PENDING]
+        chan = self.sim.channels[(p.name, "up")]
+        if p.master >= 0 and chan.disconnects(dt):
+            p.close()
+            p.pending.clear()
+            p.down_until = self.sim.t + chan.f.reconnect_s
+        if p.master < 0:
+            if self.sim.t >= p.down_until:
+                p.open()
+            return
+        if p.pending:
+            try:
+                n = os.write(p.master, bytes(p.pending))
+                del p.pending[:n]
+            except (BlockingIOError, OSError):
+                pass

@@ -1,0 +1,61 @@
+"""Calibration results on disk: the calibration.toml that `dmdsm calibrate` writes, scans read."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..files import file_hash
+from .solver import CalibrationError, CalibrationResult
+
+
+def load_calibration(path: Path) -> tuple[dict, str]:
+    """v, n, X_R (and stds) from a `dmdsm calibrate` result TOML, and its text."""
+    try:
+        text = Path(path).read_text()
+        cal = tomllib.loads(text)["calibration"]
+        out = {k: [float(x) for x in cal[k]] for k in ("v", "n", "X_R")}
+    except OSError as e:
+        raise CalibrationError(f"cannot read calibration {path}: {e.strerror}; run `dmdsm "
+                       f"calibrate` first") from None
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+        raise CalibrationError(f"{path} is not a dmdsm calibration ({e}); run `dmdsm calibrate`") \
+            from None
+    for k in ("v_std", "n_std", "X_R_std"):
+        if k in cal:
+            out[k] = [float(x) for x in cal[k]]
+    out["source"] = str(path)
+    return out, text
+
+
+def result_dict(r: CalibrationResult) -> dict:
+    """The JSON form `dmdsm calibrate --json` prints."""
+    return {"v": r.v.tolist(), "n": r.n.tolist(), "X_R": r.X_R.tolist(),
+            "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
+            "rms_residual_mm": r.rms_residual_mm,
+            "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm},
+            "residuals": {"tip_mm": r.residuals["tip"].tolist(),
+                          "edge_mm": r.residuals["edge"].tolist(),
+                          "theta_deg": r.residuals["theta_deg"].tolist()}}
+
+
+def write_result(r: CalibrationResult, path: Path, source: str) -> None:
+    """The calibration TOML that dmdsm commands load ([calibration] section)."""
+    def vec(x: np.ndarray) -> str:
+        return "[" + ", ".join(f"{float(a):.9g}" for a in x) + "]"
+    lines = ["# dmdsm scanner calibration (paper Table I layout)", "[calibration]",
+             f"v = {vec(r.v)}", f"n = {vec(r.n)}", f"X_R = {vec(r.X_R)}",
+             f"v_std = {vec(r.std['v'])}", f"n_std = {vec(r.std['n'])}",
+             f"X_R_std = {vec(r.std['X_R'])}", f"rms_residual_mm = {r.rms_residual_mm:.6g}",
+             f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
+             f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
+             f"source = {json.dumps(source)}",
+             f"source_sha256 = \"{file_hash(Path(source))}\"",
+             f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",
+             f"software = \"dmdsm {__version__}\""]
+    Path(path).write_text("\n".join(lines) + "\n")

@@ -1,0 +1,201 @@
+"""Calibration raw-point files (one row per raw point): CSV, or the same columns in HDF5."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from .solver import CalibrationError
+
+COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
+           "amplitude", "modality")
+TEXT = ("step", "modality")
+HDF5_SUFFIXES = (".h5", ".hdf5")
+FORMAT_NAME = "dmdsm-calibration-raw"
+FORMAT_VERSION = 1
+GROUP = "raw"  # one 1-D dataset per column, all the same length
+
+
+def is_hdf5(path: Path) -> bool:
+    """HDF5 by suffix (.h5, .hdf5); anything else is CSV."""
+    return Path(path).suffix.lower() in HDF5_SUFFIXES
+
+
+def _missing(path: Path, have: list[str]) -> None:
+    missing = [c for c in COLUMNS if c not in have]
+    if len(missing) == len(COLUMNS):
+        raise CalibrationError(f"{path} is not a calibration data file: it has none of the "
+                               f"columns {', '.join(COLUMNS)} (see docs/calibration.md)")
+    if missing:
+        raise CalibrationError(f"{path} lacks column(s) {', '.join(missing)} (expected: "
+                               f"{', '.join(COLUMNS)}; see docs/calibration.md)")
+
+
+def _read_csv(path: Path) -> dict[str, list]:
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as e:
+        raise CalibrationError(f"cannot read {path}: {e.strerror}") from None
+    except (csv.Error, UnicodeDecodeError):
+        raise CalibrationError(f"{path} is not a calibration CSV (see docs/calibration.md)"
+                               ) from None
+    if not rows:
+        raise CalibrationError(f"{path} has no data rows")
+    _missing(path, list(rows[0]))
+    return {c: [r[c] if r[c] is not None else "" for r in rows] for c in COLUMNS}
+
+
+def _read_hdf5(path: Path) -> dict[str, list]:
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except FileNotFoundError:
+        raise CalibrationError(f"cannot read {path}: No such file or directory") from None
+    except OSError:
+        raise CalibrationError(f"{path} is not an HDF5 file: give a calibration CSV or .h5 "
+                               f"file (see docs/calibration.md)") from None
+    with f:
+        if f.attrs.get("format_name") != FORMAT_NAME or GROUP not in f:
+            raise CalibrationError(f"{path} is not a dmdsm calibration data file (no /{GROUP} "
+                                   f"group of format {FORMAT_NAME})")
+        g = f[GROUP]
+        _missing(path, list(g.keys()))
+        lengths = {len(g[c]) for c in COLUMNS}
+        if len(lengths) != 1:
+            raise CalibrationError(f"{path}: the columns of /{GROUP} differ in length "
+                                   f"(an interrupted write?): {sorted(lengths)}")
+        if lengths == {0}:
+            raise CalibrationError(f"{path} has no data rows")
+        return {c: [x.decode() if isinstance(x, bytes) else x for x in g[c][()].tolist()]
+                for c in COLUMNS}
+
+
+def read_raw(path: Path) -> dict[str, np.ndarray]:
+    """The raw points of a calibration data file (CSV or HDF5); extra columns are ignored."""
+    cols = _read_hdf5(path) if is_hdf5(path) else _read_csv(path)
+    out: dict[str, np.ndarray] = {}
+    for c in COLUMNS:
+        vals = cols[c]
+        if c in TEXT:
+            out[c] = np.array([str(v).strip().lower() for v in vals])
+            continue
+        try:
+            out[c] = np.array([float(v) if str(v).strip() not in ("", "nan", "NaN") else np.nan
+                               for v in vals], float)
+        except ValueError:
+            raise CalibrationError(f"{path}: column {c} has a value that is not a "
+                                   f"number") from None
+    return out
+
+
+class RawWriter:
+    """Appends raw points to a data file, each flushed as it comes, so an interrupted scan
+    leaves a readable file with every point measured so far."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.n_written = 0
+        if is_hdf5(self.path):
+            import h5py
+
+            new = not self.path.exists()
+            try:
+                self._h5 = h5py.File(self.path, "a")
+            except OSError:
+                raise CalibrationError(f"{self.path} is not an HDF5 file we can append to"
+                                       ) from None
+            if new or (not self._h5.keys() and not self._h5.attrs.keys()):
+                self._h5.attrs.update(format_name=FORMAT_NAME, format_version=FORMAT_VERSION)
+                g = self._h5.create_group(GROUP)
+                for c in COLUMNS:
+                    dt = h5py.string_dtype("utf-8") if c in TEXT else "f8"
+                    g.create_dataset(c, (0,), maxshape=(None,), dtype=dt, chunks=(256,))
+            elif self._h5.attrs.get("format_name") != FORMAT_NAME or GROUP not in self._h5:
+                self._h5.close()
+                raise CalibrationError(f"{self.path} is not a dmdsm calibration data file")
+            self._csv = None
+        else:
+            new = not self.path.exists() or self.path.stat().st_size == 0
+            self._h5 = None
+            self._csv = open(self.path, "a", newline="")
+            self._w = csv.DictWriter(self._csv, fieldnames=list(COLUMNS), extrasaction="ignore")
+            if new:
+                self._w.writeheader()
+
+    def write(self, rows: list[dict]) -> None:
+        """Append rows (dicts with every name of COLUMNS) and flush them to disk."""
+        if not rows:
+            return
+        if self._h5 is not None:
+            g = self._h5[GROUP]
+            n = len(g[COLUMNS[0]])
+            for c in COLUMNS:  # every column resized and filled before the flush
+                g[c].resize(n + len(rows), axis=0)
+                g[c][n:] = [str(r[c]) if c in TEXT else float(r[c]) for r in rows]
+            self._h5.flush()
+        else:
+            for r in rows:
+                self._w.writerow({k: ("nan" if isinstance(v, float) and np.isnan(v) else v)
+                                  for k, v in r.items()})
+            self._csv.flush()
+        self.n_written += len(rows)
+
+    def close(self) -> None:
+        """Close the file (idempotent)."""
+        if self._h5 is not None:
+            self._h5.close()
+            self._h5 = None
+        if self._csv is not None:
+            self._csv.close()
+            self._csv = None
+
+    def __enter__(self) -> RawWriter:
+        return self
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def append_rows(path: Path, rows: list[dict]) -> None:
+    """Add raw points to a calibration data file (CSV header or HDF5 layout written once)."""
+    with RawWriter(path) as w:
+        w.write(rows)
+
+
+def drop_step(path: Path, step: str) -> int:
+    """Remove one step's raw points from a data file (`calibrate --replace`): rewrites the file
+    with the other rows; returns how many rows were dropped."""
+    path = Path(path)
+    if not path.exists():
+        return 0
+    raw = read_raw(path)
+    keep = raw["step"] != step
+    if keep.all():
+        return 0
+    rows = [{c: raw[c][i].item() for c in COLUMNS} for i in np.flatnonzero(keep)]
+    if rows:
+        tmp = path.with_name(".partial-" + path.name)  # same suffix: same format
+        tmp.unlink(missing_ok=True)
+        append_rows(tmp, rows)
+        tmp.replace(path)  # atomic: the old file stays whole until the new one is complete
+    else:
+        path.unlink()
+    return int((~keep).sum())
+
+
+def steps_in(path: Path) -> set[str]:
+    """The steps (tip, edge) a data file already holds; empty if there is no file."""
+    if not Path(path).exists() or Path(path).stat().st_size == 0:
+        return set()
+    try:
+        return set(read_raw(path)["step"].tolist())
+    except CalibrationError as e:
+        if "no data rows" in str(e):
+            return set()
+        raise

@@ -1,0 +1,315 @@
+"""Material classification (paper §V-B2): OA and US windows from the scan database, BOSS
+(aeon, alphabet_size=4, as the paper) and MiniRocket per modality, fused by their
+probabilities (or one modality alone), evaluated by random 3:1 splits and by leaving one
+object out.
+
+Pure computation apart from `assemble`, which reads scan files. Windows start PRE samples
+before the ranged arrival and are scaled to unit RMS: the pulse shape and the material's
+ringing are kept, the distance-dependent amplitude is not.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..ranging.calibrate import K, RangeCal, RangingSetup
+from ..scan.scanfile import ScanData, read_scan
+
+MODS = ("oa", "us")
+BOSS_PER_CLASS = 20  # BOSS trains on at most this many windows per class and modality:
+# its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set), 20-40 s per fit here
+WINDOW = 128  # samples per window (36 us at 3.58 MS/s)
+PRE = 8       # samples kept before the arrival
+
+
+class ClassifyError(ValueError):
+    """Data or a model that cannot be used as asked; str() says what to do."""
+
+
+@dataclass
+class Dataset:
+    """Per point: OA and US windows (NaN rows where absent), material, object, scan."""
+
+    X: dict[str, np.ndarray]      # modality -> (n, WINDOW) float32
+    has: dict[str, np.ndarray]    # modality -> (n,) bool
+    y: np.ndarray                 # material labels
+    groups: np.ndarray            # object ids
+    fs_hz: float
+    window: int
+    scans: list[str] = field(default_factory=list)
+    n_average: int = 0            # laser shots averaged per waveform (most common value)
+
+    def __len__(self) -> int:
+        return len(self.y)
+
+    def subset(self, idx: np.ndarray) -> Dataset:
+        """The points idx (same provenance)."""
+        return Dataset({m: x[idx] for m, x in self.X.items()},
+                       {m: h[idx] for m, h in self.has.items()}, self.y[idx],
+                       self.groups[idx], self.fs_hz, self.window, self.scans, self.n_average)
+
+    def usable(self, modalities: tuple[str, ...]) -> np.ndarray:
+        """Indices of the points with a window in at least one of these modalities."""
+        return np.nonzero(np.any([self.has[m] for m in modalities], axis=0))[0]
+
+
+def windows(waveforms: np.ndarray, arrival: np.ndarray, window: int = WINDOW,
+            pre: int = PRE) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-RMS windows (n, window) starting pre samples before each arrival (sample index,
+    NaN: none); the second array says which rows are valid."""
+    n, length = waveforms.shape
+    out = np.full((n, window), np.nan, np.float32)
+    ok = np.isfinite(arrival)
+    start = np.where(ok, np.round(np.nan_to_num(arrival)) - pre, -1).astype(int)
+    ok &= (start >= 0) & (start + window <= length)
+    for i in np.nonzero(ok)[0]:
+        w = waveforms[i, start[i]:start[i] + window].astype(np.float32) - 32768.0
+        rms = float(np.sqrt(np.mean(w * w)))
+        out[i] = w / rms if rms > 0 else w
+    return out, ok
+
+
+def arrival_sample(cal: RangeCal, modality: str, d_mm: np.ndarray, phase_s: np.ndarray,
+                   fs_hz: float, pretrigger: int = 0) -> np.ndarray:
+    """Sample index where a pulse from distance d_mm (one way for OA, round trip for US)
+    arrives, given the trigger phase (s) of each waveform."""
+    t = cal.t0_s + K[modality] * np.asarray(d_mm, float) / cal.c_mm_s
+    return (t - phase_s) * fs_hz + pretrigger
+
+
+def arrivals(scan: ScanData, modality: str) -> np.ndarray:
+    """Sample index of each point's arrival from its stored distance (NaN where none)."""
+    setup = RangingSetup.from_json(scan.ranging_json)
+    if modality not in setup.cals:
+        return np.full(scan.n_points, np.nan)
+    p = scan.points
+    idx = arrival_sample(setup.cals[modality], modality, p[f"distance_{modality}_mm"],
+                         p["trigger_phase"] / float(scan.sensor["tick_hz"]), setup.fs_hz,
+                         int(scan.sensor.get("config_pretrigger", 0)))
+    return np.where(p["received"], idx, np.nan)
+
+
+def sample_rate(sensor: dict) -> float:
+    """Samples per second of a scan's waveforms (ADC rate / configured divider), Hz."""
+    return float(sensor["adc_rate_hz"]) / int(sensor.get("config_sample_rate_div", 1))
+
+
+def assemble(paths: list[Path], window: int = WINDOW) -> Dataset:
+    """The dataset of all points of these scan files (their sample rates must agree)."""
+    X: dict[str, list] = {m: [] for m in MODS}
+    has: dict[str, list] = {m: [] for m in MODS}
+    y, groups, scans, averages, fs = [], [], [], [], None
+    for path in paths:
+        scan = read_scan(path)
+        rate = sample_rate(scan.sensor)
+        if fs is not None and abs(rate - fs) > 1e-6 * fs:
+            raise ClassifyError(f"{path} was sampled at {rate:.0f} Hz, the others at "
+                                f"{fs:.0f} Hz: build one database per sample rate")
+        fs = rate
+        if not scan.sample.get("material"):
+            raise ClassifyError(f"{path} has no material label (scan plan [sample] material)")
+        for m in MODS:
+            w, ok = windows(scan.waveforms, arrivals(scan, m), window)
+            X[m].append(w)
+            has[m].append(ok)
+        n = scan.n_points
+        averages.append(scan.points["n_average"][scan.points["received"]])
+        y += [str(scan.sample["material"])] * n
+        groups += [str(scan.sample["name"])] * n
+        scans.append(str(scan.entry.get("scan_id", path.stem)))
+    if fs is None:
+        raise ClassifyError("no scans to classify: scan objects into the database first")
+    avg = np.concatenate(averages).astype(int)
+    ds = Dataset({m: np.vstack(X[m]) for m in MODS}, {m: np.concatenate(has[m]) for m in MODS},
+                 np.array(y), np.array(groups), fs, window, scans,
+                 int(np.bincount(avg).argmax()) if len(avg) else 0)
+    return ds.subset(ds.usable(MODS))  # points without any arrival carry no signal
+
+
+def make_classifier(name: str, seed: int = 0) -> object:
+    """An aeon classifier: 'boss' (BOSSEnsemble, alphabet_size=4) or 'minirocket' (its
+    standard ridge, with probabilities from CalibratedRidge)."""
+    if name == "boss":
+        from aeon.classification.dictionary_based import BOSSEnsemble
+        # word windows 16..43 samples (4.5-12 us: a few carrier cycles to one pulse)
+        return BOSSEnsemble(alphabet_size=4, min_window=16, max_win_len_prop=0.34,
+                            max_ensemble_size=50, random_state=seed)
+    if name == "minirocket":
+        from aeon.classification.convolution_based import MiniRocketClassifier
+        from sklearn.pipeline import make_pipeline
+        from sklearn.preprocessing import StandardScaler
+
+        from .ridge import CalibratedRidge
+
+        ridge = CalibratedRidge(alphas=np.logspace(-3, 3, 10), store_cv_results=True,
+                                scoring="accuracy")
+        return MiniRocketClassifier(estimator=make_pipeline(StandardScaler(with_mean=False),
+                                                            ridge), random_state=seed)
+    raise ClassifyError(f"unknown classifier {name!r}: use boss or minirocket")
+
+
+@dataclass
+class FusedModel:
+    """One classifier per modality, fused: P(c | x) ~ P(pattern | c) P(c) prod_m
+    p_m(c | x_m) / P_m(c), where pattern says which modalities a point has (a missing
+    modality is itself evidence: glass gives no OA, foam no US). A one-modality model sees
+    only that modality's windows and no pattern."""
+
+    name: str
+    classes: np.ndarray
+    models: dict[str, object]
+    prior: np.ndarray                       # P(c)
+    mod_prior: dict[str, np.ndarray]        # P_m(c) in modality m's training set
+    pattern: np.ndarray                     # P(pattern | c): (4, n_classes)
+    fit_s: float = 0.0
+    modalities: tuple[str, ...] = MODS
+    modality_model: object | None = None    # tells an OA window from a US one (lone pulses)
+
+    def predict_proba(self, ds: Dataset) -> np.ndarray:
+        """(n, n_classes) probabilities."""
+        logp = np.log(self.prior)[None, :] + np.log(self.pattern[_pattern(ds)])
+        for m, model in self.models.items():
+            idx = np.nonzero(ds.has[m])[0]
+            if len(idx):
+                p = np.zeros((len(idx), len(self.classes)))
+                cols = np.searchsorted(self.classes, model.classes_)
+                p[:, cols] = model.predict_proba(ds.X[m][idx][:, None, :])
+                logp[idx] += np.log(np.clip(p, 1e-6, 1)) - np.log(self.mod_prior[m])
+        logp -= logp.max(axis=1, keepdims=True)
+        prob = np.exp(logp)
+        return prob / prob.sum(axis=1, keepdims=True)
+
+    def predict(self, ds: Dataset) -> np.ndarray:
+        """Most probable material per point."""
+        return self.classes[self.predict_proba(ds).argmax(axis=1)]
+
+
+def _pattern(ds: Dataset) -> np.ndarray:
+    return ds.has["oa"].astype(int) + 2 * ds.has["us"].astype(int)
+
+
+def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MODS,
+        lone_pulses: bool = False) -> FusedModel:
+    """Train the per-modality classifiers and the fusion on the points that have a window in
+    one of `modalities`; lone_pulses: also learn to tell OA from US windows (live use)."""
+    _check_modalities(modalities)
+    ds = ds.subset(ds.usable(modalities))
+    classes = np.unique(ds.y)
+    if len(classes) < 2:
+        raise ClassifyError("need at least two materials to train a classifier")
+    t0 = time.perf_counter()
+    counts = np.array([(ds.y == c).sum() for c in classes], float)
+    pat = np.ones((4, len(classes)))  # Laplace smoothing; uniform for one modality
+    for j, c in enumerate(classes):
+        if len(modalities) == len(MODS):
+            pat[:, j] += np.bincount(_pattern(ds)[ds.y == c], minlength=4)
+    models, mod_prior = {}, {}
+    rng = np.random.default_rng(seed)
+    for m in modalities:
+        idx = np.nonzero(ds.has[m])[0]
+        if len(np.unique(ds.y[idx])) < 2:
+            continue
+        if name == "boss":
+            idx = np.concatenate([rng.permutation(idx[ds.y[idx] == c])[:BOSS_PER_CLASS]
+                                  for c in np.unique(ds.y[idx])])
+        models[m] = make_classifier(name, seed).fit(ds.X[m][idx][:, None, :], ds.y[idx])
+        mc = np.array([(ds.y[idx] == c).sum() for c in classes], float) + 1.0
+        mod_prior[m] = mc / mc.sum()
+    if not models:
+        raise ClassifyError(f"no {'/'.join(modalities).upper()} windows of two or more "
+                            f"materials to learn from")
+    which = None
+    if lone_pulses and len(modalities) == len(MODS):
+        which = fit_modality(ds, seed)
+    return FusedModel(name, classes, models, counts / counts.sum(), mod_prior,
+                      pat / pat.sum(axis=0, keepdims=True), time.perf_counter() - t0,
+                      tuple(modalities), which)
+
+
+def _check_modalities(modalities: tuple[str, ...]) -> None:
+    if not modalities or any(m not in MODS for m in modalities):
+        raise ClassifyError(f"modalities must be some of {', '.join(MODS)} (got {modalities})")
+
+
+def fit_modality(ds: Dataset, seed: int = 0) -> object:
+    """MiniRocket telling OA windows from US windows (classes 'oa', 'us')."""
+    X = np.vstack([ds.X[m][ds.has[m]] for m in MODS])
+    y = np.concatenate([[m] * int(ds.has[m].sum()) for m in MODS])
+    if len(np.unique(y)) < 2:
+        raise ClassifyError("telling lone OA from US pulses needs windows of both modalities")
+    return make_classifier("minirocket", seed).fit(X[:, None, :], y)
+
+
+def predict_lone(model: FusedModel, x: np.ndarray) -> np.ndarray:
+    """(n, n_classes) probabilities for windows x (n, window) of lone pulses whose modality
+    is unknown (one arrival, no partner): the posteriors of reading each as OA alone and as
+    US alone, weighted by P(modality | window)."""
+    n = len(x)
+
+    def alone(m: str) -> np.ndarray:
+        ds = Dataset({k: x if k == m else np.full_like(x, np.nan) for k in MODS},
+                     {k: np.full(n, k == m) for k in MODS}, np.full(n, "?"),
+                     np.full(n, "live"), 0.0, x.shape[1])
+        return model.predict_proba(ds)
+
+    if len(model.modalities) == 1:
+        return alone(model.modalities[0])
+    if model.modality_model is None:
+        raise ClassifyError("this model cannot read lone pulses: train it with "
+                            "`dmdsm classify train` (it learns OA from US windows)")
+    p = model.modality_model.predict_proba(x[:, None, :])
+    p_oa = p[:, list(model.modality_model.classes_).index("oa")][:, None]
+    return p_oa * alone("oa") + (1 - p_oa) * alone("us")
+
+
+def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: np.ndarray) -> np.ndarray:
+    """Counts: rows true class, columns predicted class."""
+    cm = np.zeros((len(classes), len(classes)), int)
+    ti, pi = np.searchsorted(classes, y_true), np.searchsorted(classes, y_pred)
+    np.add.at(cm, (ti, pi), 1)
+    return cm
+
+
+def evaluate_random(ds: Dataset, name: str, trials: int = 50, test_size: float = 0.25,
+                    seed: int = 0, modalities: tuple[str, ...] = MODS) -> np.ndarray:
+    """The paper's protocol: random stratified 3:1 splits of the points with a window in
+    `modalities`; the summed confusion matrix (rows and columns: np.unique(ds.y))."""
+    from sklearn.model_selection import StratifiedShuffleSplit
+
+    classes = np.unique(ds.y)
+    _check_modalities(modalities)
+    ds = ds.subset(ds.usable(modalities))
+    cm = np.zeros((len(classes), len(classes)), int)
+    split = StratifiedShuffleSplit(n_splits=trials, test_size=test_size, random_state=seed)
+    for k, (tr, te) in enumerate(split.split(np.zeros(len(ds)), ds.y)):
+        model = fit(ds.subset(tr), name, seed + k, modalities)
+        cm += confusion(ds.y[te], model.predict(ds.subset(te)), classes)
+    return cm
+
+
+def evaluate_loo(ds: Dataset, name: str, seed: int = 0,
+                 modalities: tuple[str, ...] = MODS) -> np.ndarray:
+    """Leave one object out: train on the other objects, test on this one's points."""
+    classes = np.unique(ds.y)
+    _check_modalities(modalities)
+    ds = ds.subset(ds.usable(modalities))
+    cm = np.zeros((len(classes), len(classes)), int)
+    for obj in np.unique(ds.groups):
+        te = np.nonzero(ds.groups == obj)[0]
+        tr = np.nonzero(ds.groups != obj)[0]
+        if ds.y[te[0]] not in set(ds.y[tr]):
+            continue  # the only object of its material: nothing to learn it from
+        model = fit(ds.subset(tr), name, seed, modalities)
+        cm += confusion(ds.y[te], model.predict(ds.subset(te)), classes)
+    return cm
+
+
+def per_class_accuracy(cm: np.ndarray, classes: np.ndarray) -> dict[str, float]:
+    """Recall of each class from a confusion matrix (NaN where a class was never tested)."""
+    n = cm.sum(axis=1)
+    return {str(c): float(cm[i, i] / n[i]) if n[i] else float("nan")
+            for i, c in enumerate(classes)}

@@ -1,0 +1,167 @@
+"""`dmdsm classify train|evaluate|predict`: material classifiers on the scan database, model
+files with their data's provenance, and predictions on scans or a live acquisition."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..classify.materials import (
+    MODS,
+    WINDOW,
+    ClassifyError,
+    assemble,
+    evaluate_loo,
+    evaluate_random,
+    fit,
+    per_class_accuracy,
+    predict_lone,
+)
+from ..classify.model_file import check_provenance, read_model, save_model
+from ..classify.predict import predict_scan, vote
+from ..report.plots import confusion_figure
+
+PAPER = {"artificial materials": ">= 98.5 %", "apple": "79.0 %"}
+MODALITY = {"both": MODS, "oa": ("oa",), "us": ("us",)}
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register `classify`."""
+    p = sub.add_parser("classify", help="train, evaluate and use material classifiers")
+    p.add_argument("action", choices=["train", "evaluate", "predict"])
+    p.add_argument("--db", type=Path, help="scan database directory")
+    p.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket")
+    p.add_argument("--classifiers", nargs="+", choices=["boss", "minirocket"],
+                   default=["boss", "minirocket"], help="evaluate: which ones")
+    p.add_argument("--modality", choices=list(MODALITY), default="both",
+                   help="train/evaluate: OA and US fused (default) or one alone")
+    p.add_argument("--window", type=int, default=WINDOW,
+                   help=f"samples per window (default {WINDOW}); a model only takes its own")
+    p.add_argument("--trials", type=int, default=50, help="evaluate: random 3:1 splits")
+    p.add_argument("--boss-trials", type=int, default=10,
+                   help="evaluate: random splits for BOSS (about 20 s per fit)")
+    p.add_argument("--no-loo", action="store_true",
+                   help="evaluate: skip the leave-one-object-out protocol")
+    p.add_argument("--out", type=Path, default=Path("classify"),
+                   help="evaluate: folder for confusion matrices (CSV, PNG)")
+    p.add_argument("-o", "--model", type=Path, default=Path("material.model"))
+    p.add_argument("--scan", type=Path, help="predict: every point of this scan file")
+    p.add_argument("--sensor", help="predict: acquire where the sensor is now")
+    p.add_argument("--ranging", type=Path, default=Path("ranging.json"))
+    p.add_argument("--shots", type=int, default=8, help="predict --sensor: waveforms")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_classify)
+
+
+def _db_paths(db: Path | None) -> list[Path]:
+    from ..scan.catalogue import CatalogueError, list_scans
+
+    if db is None:
+        raise ClassifyError("give --db DIR (a scan database)")
+    try:
+        rows = [r for r in list_scans(db) if r["status"] == "complete"]
+    except CatalogueError as e:
+        raise ClassifyError(str(e)) from None
+    if not rows:
+        raise ClassifyError(f"{db} has no complete scans; `dmdsm scan` fills it")
+    return [Path(r["path"]) for r in rows]
+
+
+def confusion_table(cm: np.ndarray, classes: np.ndarray) -> str:
+    """Row-normalised confusion matrix in percent as text (rows: true material)."""
+    pct = 100 * cm / np.maximum(cm.sum(axis=1, keepdims=True), 1)
+    w = max(9, *(len(c) + 1 for c in classes))
+    head = "true/pred"
+    lines = [f"{head:<{w}}" + "".join(f"{c[:w - 1]:>{w}}" for c in classes)]
+    for c, row, n in zip(classes, pct, cm.sum(axis=1)):
+        cells = "".join(f"{v:>{w}.1f}" if n else f"{'-':>{w}}" for v in row)
+        lines.append(f"{c:<{w}}{cells}")
+    return "\n".join(lines)
+
+
+def cmd_classify(args: argparse.Namespace) -> int:
+    """Dispatch the three actions; every ClassifyError becomes one line."""
+    from .errors import CliError
+
+    try:
+        if args.window < 16:
+            raise ClassifyError(f"--window must be at least 16 samples (got {args.window})")
+        return {"train": _train, "evaluate": _evaluate, "predict": _predict}[args.action](args)
+    except ClassifyError as e:
+        raise CliError(str(e)) from None
+
+
+def _train(args: argparse.Namespace) -> int:
+    ds = assemble(_db_paths(args.db), args.window)
+    model = fit(ds, args.classifier, modalities=MODALITY[args.modality], lone_pulses=True)
+    save_model(model, ds, args.model)
+    out = {"model": str(args.model), "classifier": args.classifier, "points": len(ds),
+           "modality": args.modality, "classes": model.classes.tolist(),
+           "fit_s": round(model.fit_s, 2)}
+    print(json.dumps(out) if args.json else f"trained {args.classifier} ({args.modality}) on "
+          f"{len(ds)} points ({', '.join(model.classes)}) in {model.fit_s:.1f} s; saved "
+          f"{args.model}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    ds = assemble(_db_paths(args.db), args.window)
+    mods = MODALITY[args.modality]
+    classes = np.unique(ds.y)
+    args.out.mkdir(parents=True, exist_ok=True)
+    res: dict = {"points": len(ds), "objects": len(np.unique(ds.groups)),
+                 "modality": args.modality, "classifiers": {}}
+    tables = []
+    for name in args.classifiers:
+        r = {}
+        trials = args.boss_trials if name == "boss" else args.trials
+        protocols = [("random", lambda n=name, k=trials: evaluate_random(ds, n, k,
+                                                                          modalities=mods))]
+        if not args.no_loo:
+            protocols.append(("loo", lambda n=name: evaluate_loo(ds, n, modalities=mods)))
+        for proto, run in protocols:
+            cm = run()
+            r[proto] = per_class_accuracy(cm, classes)
+            tag = f"{name}_{proto}" + ("" if args.modality == "both" else f"_{args.modality}")
+            np.savetxt(args.out / f"confusion_{tag}.csv", cm, fmt="%d", delimiter=",",
+                       header=",".join(classes))
+            label = (f"{trials} random 3:1 splits" if proto == "random"
+                     else "leave one object out")
+            confusion_figure(cm, classes, args.out / f"confusion_{tag}.png",
+                             f"{name} ({args.modality}): {label} (simulated data)")
+            tables.append(f"{name} ({args.modality}), {label}, % of each true material:\n"
+                          + confusion_table(cm, classes))
+        res["classifiers"][name] = {**r, "trials": trials}
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"{len(ds)} points, {res['objects']} objects (simulated data, not a reproduction "
+          f"of the paper's {PAPER})")
+    for name, r in res["classifiers"].items():
+        for proto, acc in ((k, v) for k, v in r.items() if k != "trials"):
+            print(f"{name:>10} {proto:>6}: " + ", ".join(f"{c} {a:.1%}" for c, a in acc.items()))
+    print("\n" + "\n\n".join(tables))
+    return 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    if args.scan:
+        out = predict_scan(args.model, args.scan, args.window)
+    elif args.sensor:
+        from ..classify.live import acquire_windows
+
+        model, prov = read_model(args.model)
+        paired, lone = acquire_windows(args, prov, check_provenance)
+        prob = np.vstack([model.predict_proba(paired) if len(paired) else
+                          np.zeros((0, len(model.classes))),
+                          predict_lone(model, lone) if len(lone) else
+                          np.zeros((0, len(model.classes)))])
+        out = vote(model.classes, prob, args.sensor)
+    else:
+        raise ClassifyError("predict needs --scan FILE or --sensor PORT")
+    print(json.dumps(out) if args.json else f"{out['source']}: {out['material']} "
+          f"(confidence {out['confidence']:.0%} over {out['points']} waveforms)")
+    return 0

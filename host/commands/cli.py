@@ -1,0 +1,61 @@
+"""The `dmdsm` command: one entry point, one subcommand per job (argparse, pySerial style)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from dmdsm.protocol import tool as protocol_tool
+
+from .. import __version__
+from ..calibration.solver import CalibrationError
+from ..links.config import ConfigError
+from ..links.safety import UnsafeMove
+from ..links.transport import LinkError
+from . import calibrate, classify, db, devices, flash, range, scan, sim
+from .errors import CliError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `dmdsm` with all subcommands."""
+    ap = argparse.ArgumentParser(
+        prog="dmdsm",
+        description="Object scanner for the DMDSM pretouch sensor (host side).")
+    ap.add_argument("--version", action="version", version=f"dmdsm {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    protocol_tool.add_parser(sub)
+    flash.add_parser(sub)
+    sim.add_parser(sub)
+    devices.add_parsers(sub)
+    range.add_parsers(sub)
+    calibrate.add_parser(sub)
+    scan.add_parser(sub)
+    db.add_parsers(sub)
+    classify.add_parser(sub)
+    d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
+    d.add_argument("--out", default="out", help="output folder (default: out)")
+    d.add_argument("--quick", action="store_true", help="smaller run for a first look")
+    d.set_defaults(func=_demo)
+    return ap
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from ..report.demo import run_demo
+    return run_demo(args.out, main, quick=args.quick)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `dmdsm`; returns the process exit code (2 for user errors, 130 for Ctrl-C)."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (CliError, protocol_tool.ToolError, flash.FlashError, LinkError, ConfigError,
+            UnsafeMove, CalibrationError) as e:
+        print(f"dmdsm: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dmdsm: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        sys.stderr.close()  # output piped into `head` and closed: not an error
+        return 0

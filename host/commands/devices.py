@@ -1,0 +1,222 @@
+"""`dmdsm ports | info | acquire | stage`: the boards from the terminal, each with --json."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from dmdsm.marlin_patch import load_machine
+
+from ..links.config import load_config, resolve_port
+
+ROLES = {  # USB VID:PID -> guessed role
+    "0483:374b": "sensor (NUCLEO-H743ZI ST-LINK/V2-1 VCP)",
+    "0483:374e": "sensor (NUCLEO-H743ZI2 STLINK-V3 VCP)",
+    "0483:374f": "sensor (STLINK-V3 VCP)",
+    "0483:3753": "sensor (STLINK-V3 VCP)",
+    "0483:3754": "sensor (STLINK-V3 VCP)",
+    "0483:5740": "sensor (STM32 USB CDC)",
+    "1a86:7523": "stage (CH340, as on the Chiron's Trigorilla)",
+    "2341:0042": "stage (Arduino Mega 2560)",
+    "2341:0010": "stage (Arduino Mega 2560)",
+}
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """Register ports, info, acquire and stage."""
+    p = sub.add_parser("ports", help="list serial ports with a guessed role")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_ports)
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", type=Path, default=None, help="TOML file with [ports]")
+    common.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("info", parents=[common], help="identify the sensor board")
+    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("acquire", parents=[common], help="record shots into an HDF5 file")
+    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--shots", type=int, required=True, help="waveforms to record")
+    p.add_argument("--average", type=int, default=None, help="shots averaged on board")
+    p.add_argument("--samples", type=int, default=None, help="samples per shot")
+    p.add_argument("-o", "--output", type=Path, required=True, help="FILE.h5")
+    p.set_defaults(func=cmd_acquire)
+
+    p = sub.add_parser("stage", parents=[common], help="home, move, where, stop")
+    p.add_argument("action", choices=["home", "move", "where", "stop"])
+    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    for axis, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("a", "deg")):
+        p.add_argument(f"-{axis}", f"--{axis}", type=float,
+                       help=f"target {axis.upper()} ({unit})")
+    p.add_argument("--feed", type=float, default=3000, help="feedrate (mm/min)")
+    p.add_argument("--relative", action="store_true", help="move by, not to")
+    p.add_argument("--object-radius", type=float, default=0.0,
+                   help="keep-out cylinder radius around the table axis (mm)")
+    p.add_argument("--object-height", type=float, default=0.0, help="keep-out height (mm)")
+    p.set_defaults(func=cmd_stage)
+
+
+def _out(args: argparse.Namespace, obj: dict, text: str) -> None:
+    print(json.dumps(obj) if args.json else text)
+
+
+def cmd_ports(args: argparse.Namespace) -> int:
+    """List serial ports, their USB ids, by-id names and guessed roles."""
+    from serial.tools import list_ports
+
+    by_id = {}
+    d = Path("/dev/serial/by-id")
+    if d.is_dir():
+        by_id = {os.path.realpath(p): str(p) for p in d.iterdir()}
+    rows = []
+    for p in sorted(list_ports.comports(), key=lambda p: p.device):
+        vidpid = f"{p.vid:04x}:{p.pid:04x}" if p.vid is not None else ""
+        rows.append({"device": p.device, "by_id": by_id.get(os.path.realpath(p.device), ""),
+                     "usb": vidpid, "description": p.description or "",
+                     "serial_number": p.serial_number or "",
+                     "role": ROLES.get(vidpid, "unknown")})
+    if args.json:
+        print(json.dumps(rows))
+    elif not rows:
+        print("no serial ports found (is the board plugged in? `dmdsm sim` makes virtual ones)")
+    else:
+        for r in rows:
+            print(f"{r['device']:<16} {r['usb']:<10} {r['role']:<45} "
+                  f"{r['by_id'] or r['description']}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """Identity, configuration and counters of the sensor board."""
+    from ..links.sensor import SensorClient
+
+    sc = SensorClient(resolve_port("sensor", args.sensor, load_config(args.config)))
+    try:
+        ident = {k: v for k, v in sc.identity.fields.items()}
+        ident["spec_hash"] = f"{ident['spec_hash']:016x}"
+        info = {"port": sc.port_name, "identity": ident,
+                "config": dict(sc.request("get_config").fields), "status": sc.status()}
+    finally:
+        sc.close()
+    i = info["identity"]
+    _out(args, info, f"{info['port']}: {i['board']}, firmware {i['fw_major']}.{i['fw_minor']}."
+         f"{i['fw_patch']}, protocol {i['protocol_version']}, spec {i['spec_hash']}\n"
+         f"config: " + " ".join(f"{k}={v}" for k, v in info["config"].items()) + "\n"
+         "status: " + " ".join(f"{k}={v}" for k, v in info["status"].items()))
+    return 0
+
+
+def write_shots(path: Path, shots: object, identity: dict, port: str) -> None:
+    """HDF5, NeXus-like: /entry/instrument/sensor, /entry/data/waveforms (n, n_samples)."""
+    import h5py
+
+    tmp = path.with_suffix(path.suffix + ".part")
+    with h5py.File(tmp, "w") as f:
+        f.attrs.update(format_name="dmdsm-shots", format_version="1", default="entry")
+        e = f.create_group("entry")
+        e.attrs.update(NX_class="NXentry", default="data", created=time.strftime("%FT%T%z"))
+        s = e.create_group("instrument").create_group("sensor")
+        s.attrs.update(NX_class="NXdetector", port=port,
+                       **{k: v for k, v in identity.items() if k != "spec_hash"},
+                       spec_hash=f"{identity['spec_hash']:016x}")
+        s.attrs.update({f"config_{k}": v for k, v in shots.config.items()})
+        d = e.create_group("data")
+        d.attrs.update(NX_class="NXdata", signal="waveforms")
+        d.create_dataset("waveforms", data=shots.samples, chunks=(1, shots.samples.shape[1]),
+                         compression="gzip", compression_opts=1)
+        for name in ("received", "timestamp", "trigger_phase", "n_average"):
+            d.create_dataset(name, data=getattr(shots, name))
+        d.create_dataset("shot_id", data=np.arange(len(shots.received)))
+        d.attrs.update(device_dropped=shots.device_dropped, adc_overruns=shots.adc_overruns,
+                       link_rejected=shots.link_rejected, lost=len(shots.lost))
+    tmp.replace(path)
+
+
+def cmd_acquire(args: argparse.Namespace) -> int:
+    """Arm for N shots with a progress bar, then write them and report losses."""
+    from tqdm import tqdm
+
+    from ..links.sensor import SensorClient
+
+    if args.shots <= 0:
+        from .errors import CliError
+        raise CliError("--shots must be positive")
+    sc = SensorClient(resolve_port("sensor", args.sensor, load_config(args.config)))
+    try:
+        cfg = {k: v for k, v in (("n_average", args.average), ("n_samples", args.samples))
+               if v is not None}
+        if cfg:
+            sc.configure(**cfg)
+        with tqdm(total=args.shots, unit="shot", disable=args.json) as bar:
+            def progress(n: int) -> None:
+                bar.update(n - bar.n)
+            try:
+                shots = sc.acquire(args.shots, progress=progress)
+            except KeyboardInterrupt:
+                sc.disarm()
+                raise
+        write_shots(args.output, shots, dict(sc.identity.fields), sc.port_name)
+    finally:
+        sc.close()
+    got = int(shots.received.sum())
+    summary = {"file": str(args.output), "shots": args.shots, "received": got,
+               "lost": int(len(shots.lost)), "device_dropped": shots.device_dropped,
+               "link_rejected": shots.link_rejected, "adc_overruns": shots.adc_overruns}
+    _out(args, summary, f"wrote {args.output}: {got} of {args.shots} shots; lost "
+         f"{len(shots.lost)} (device dropped {shots.device_dropped}, link rejected "
+         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns})")
+    return 0
+
+
+def cmd_stage(args: argparse.Namespace) -> int:
+    """Home, move (checked against the envelope and keep-out first), where, stop."""
+    from ..links.stage import StageClient
+
+    config = load_config(args.config)
+    st = StageClient(resolve_port("stage", args.stage, config))
+    try:
+        if args.action == "home":
+            pos = st.home()
+        elif args.action == "where":
+            pos = st.where()
+        elif args.action == "stop":
+            st.stop()
+            pos = st.where()
+        else:
+            pos = _move(st, args, config)
+    except KeyboardInterrupt:
+        st.stop()  # Ctrl-C during motion: quick-stop, port stays usable
+        raise
+    finally:
+        st.close()
+    _out(args, pos, " ".join(f"{k}:{v:.3f}" for k, v in pos.items()))
+    return 0
+
+
+def _move(st: object, args: argparse.Namespace, config: dict) -> dict:
+    """Check the move against the envelope and the keep-out, then move and wait."""
+    from ..links.safety import TABLE_I, KeepOut, check_move
+
+    here = st.where()
+    target = dict(here)
+    for axis in "XYZA":
+        v = getattr(args, axis.lower())
+        if v is not None:
+            target[axis] = here[axis] + v if args.relative else v
+    cal = config.get("calibration", {})
+    keep = KeepOut(np.asarray(cal.get("X_R", TABLE_I["X_R"]), float),
+                   np.asarray(cal.get("n", TABLE_I["n"]), float),
+                   args.object_radius, args.object_height)
+    check_move(np.array([here[a] for a in "XYZ"]), np.array([target[a] for a in "XYZ"]),
+               load_machine(), keep)
+    st.move(x=target["X"], y=target["Y"], z=target["Z"], a=target["A"],
+            feed_mm_min=args.feed)
+    st.wait()
+    return st.where()

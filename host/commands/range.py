@@ -1,0 +1,115 @@
+"""`dmdsm calibrate-range` and `dmdsm range`: the stage as a ruler for t0 and c, and ranging of
+recorded acquisitions."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..ranging.calibrate import MODALITIES, RangingSetup, range_waveforms
+from ..ranging.matched_filter import speed_of_sound_mm_s
+from ..ranging.procedure import calibrate_range
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """Register calibrate-range and range."""
+    p = sub.add_parser("calibrate-range", help="fit t0 and c with the stage as a ruler")
+    p.add_argument("--sensor")
+    p.add_argument("--stage")
+    p.add_argument("--config", type=Path, default=None)
+    p.add_argument("-x", type=float, required=True, help="start X (mm)")
+    p.add_argument("-y", type=float, required=True, help="start Y (mm), closest to the target")
+    p.add_argument("-z", type=float, required=True, help="start Z (mm)")
+    p.add_argument("--start-distance", type=float, required=True,
+                   help="beam distance to the flat target at the start (mm)")
+    p.add_argument("--steps", type=int, default=11)
+    p.add_argument("--step", type=float, default=0.5, help="Y step away from the target (mm)")
+    p.add_argument("--shots", type=int, default=10)
+    p.add_argument("--average", type=int, default=16)
+    p.add_argument("--temperature", type=float, default=20.0, help="air temperature (degC)")
+    p.add_argument("--lateral", type=int, default=1,
+                   help="X positions per depth (0.5 mm apart) to average surface roughness")
+    p.add_argument("--fixed-c", action="store_true",
+                   help="take c from --temperature and fit t0 only (short travel)")
+    p.add_argument("-o", "--output", type=Path, default=Path("ranging.json"))
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_calibrate_range)
+    p = sub.add_parser("range", help="distances from a recorded acquisition (dmdsm acquire)")
+    p.add_argument("file", type=Path)
+    p.add_argument("--calibration", type=Path, default=Path("ranging.json"))
+    p.add_argument("--modality", choices=MODALITIES, default="oa")
+    p.add_argument("--temperature", type=float, default=None,
+                   help="use c from this air temperature (degC) instead of the fitted c")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_range)
+
+
+def cmd_calibrate_range(args: argparse.Namespace) -> int:
+    """Run the procedure against the two boards and save the ranging setup."""
+    from ..links.config import load_config, resolve_port
+    from ..links.sensor import SensorClient
+    from ..links.stage import StageClient
+    from .errors import CliError
+
+    cfg = load_config(args.config)
+    sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
+    try:
+        with StageClient(resolve_port("stage", args.stage, cfg)) as st:
+            setup, report = calibrate_range(
+                st, sc, {"X": args.x, "Y": args.y, "Z": args.z}, args.start_distance,
+                args.steps, args.step, args.shots, args.average, args.temperature,
+                fit_c=not args.fixed_c, lateral=args.lateral)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    finally:
+        sc.close()
+    setup.save(args.output)
+    if args.json:
+        print(json.dumps({"file": str(args.output), **report}))
+    else:
+        for m, text in report.items():
+            print(f"{m.upper()}: {text}")
+        print(f"saved {args.output}")
+    return 0
+
+
+def cmd_range(args: argparse.Namespace) -> int:
+    """Range every received shot of an HDF5 acquisition."""
+    import h5py
+
+    from .errors import CliError
+
+    try:
+        setup = RangingSetup.load(args.calibration)
+    except ValueError as e:
+        raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
+    if args.modality not in setup.cals:
+        raise CliError(f"{args.calibration} has no {args.modality.upper()} calibration")
+    if args.temperature is not None:
+        setup.cals[args.modality].c_mm_s = speed_of_sound_mm_s(args.temperature)
+    try:
+        with h5py.File(args.file, "r") as f:
+            d = f["/entry/data"]
+            ok = d["received"][:]
+            x = d["waveforms"][:][ok].astype(float) - 32768.0
+            tick_hz = float(f["/entry/instrument/sensor"].attrs["tick_hz"])
+            phase = d["trigger_phase"][:][ok] / tick_hz
+            pre = int(f["/entry/instrument/sensor"].attrs.get("config_pretrigger", 0))
+            ids = d["shot_id"][:][ok]
+    except (OSError, KeyError) as e:
+        raise CliError(f"{args.file}: not a dmdsm acquisition file ({e})") from None
+    dist, snr = range_waveforms(x, phase, setup, args.modality, pre)
+    if args.json:
+        print(json.dumps({"shot_id": ids.tolist(), "distance_mm": [
+            None if np.isnan(v) else v for v in dist.tolist()], "snr_db": snr.tolist()}))
+    else:
+        for i, v, s in zip(ids, dist, snr):
+            print(f"{i:6d} {'no echo' if np.isnan(v) else f'{v:10.4f} mm'}  SNR {s:5.1f} dB")
+        good = dist[np.isfinite(dist)]
+        if good.size:
+            print(f"{good.size} of {len(dist)} shots: mean {good.mean():.4f} mm, "
+                  f"std {good.std():.4f} mm")
+    return 0

@@ -1,0 +1,100 @@
+"""`dmdsm scan`: run a scan plan into the database (scan.session.run_plan), from the terminal."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from ..calibration.result import load_calibration
+from ..links.config import load_config, resolve_port
+from ..links.sensor import SensorClient
+from ..links.stage import StageClient
+from ..ranging.calibrate import RangingSetup
+from ..scan.plan import PlanError, load_plan
+from ..scan.scanfile import ScanFileError, ScanWriter
+from ..scan.session import run_plan
+from .errors import CliError
+
+log = logging.getLogger("dmdsm.scan")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register `scan`."""
+    p = sub.add_parser("scan", help="scan an object into the database (step and shoot)")
+    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    p.add_argument("--config", type=Path, default=None)
+    p.add_argument("--calibration", type=Path, default=Path("calibration.toml"))
+    p.add_argument("--ranging", type=Path, default=Path("ranging.json"))
+    p.add_argument("--plan", type=Path, required=True, help="scan plan TOML")
+    p.add_argument("-o", "--db", type=Path, required=True, help="database directory")
+    p.add_argument("--object", dest="object_id", help="override [sample] object_id")
+    p.add_argument("--material", help="override [sample] material")
+    p.add_argument("--scan-id", help="name of the scan (default: object id + plan hash)")
+    p.add_argument("--no-home", action="store_true", help="the stage is already homed")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_scan)
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    """Check the whole plan, then measure its points; resumable; Ctrl-C stops the stage."""
+    from tqdm import tqdm
+
+    try:
+        plan = load_plan(args.plan, object_id=args.object_id, material=args.material)
+    except PlanError as e:
+        raise CliError(str(e)) from None
+    cal, cal_text = load_calibration(args.calibration)
+    try:
+        setup = RangingSetup.load(args.ranging)
+    except ValueError as e:
+        raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
+    cfg = load_config(args.config)
+    state: dict = {}
+
+    def on_start(writer: ScanWriter, planned: int) -> None:
+        state["writer"], state["planned"] = writer, planned
+        if writer.n_done:
+            print(f"resuming {Path(writer.path).stem}: {writer.n_done} of {planned} points done")
+        state["bar"] = tqdm(total=planned, initial=writer.n_done, unit="pt", disable=args.json)
+
+    def progress(done: int, total: int, timing: dict) -> None:
+        state["bar"].update(done - state["bar"].n)
+        log.debug("point %d: %s", done - 1,
+                  " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in timing.items()))
+
+    sensor = SensorClient(resolve_port("sensor", args.sensor, cfg))
+    try:
+        with StageClient(resolve_port("stage", args.stage, cfg)) as st:
+            run = run_plan(sensor, st, plan, cal, cal_text, setup, args.db,
+                           scan_id=args.scan_id, home=not args.no_home, progress=progress,
+                           on_start=on_start)
+    except ScanFileError as e:
+        raise CliError(str(e)) from None
+    except BaseException:
+        w = state.get("writer")
+        if w is not None:
+            print(f"scan {Path(w.path).stem} stopped after {w.n_done} of {state['planned']} "
+                  f"points; they are saved in {w.path}; run the same command to continue",
+                  file=sys.stderr)
+        raise
+    finally:
+        if "bar" in state:
+            state["bar"].close()
+        sensor.close()
+    if run.status == "already complete":
+        print(f"scan {run.scan_id} is complete ({run.points} points) in {run.path}; nothing "
+              f"to do (--scan-id NAME starts another)")
+        return 0
+    summary = run.summary()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        per = run.stats.per_point_ms()
+        print(f"scan {run.scan_id}: {run.points} points in {run.path}; "
+              f"{summary['points_per_s']} points/s; per point "
+              + ", ".join(f"{k} {v:.1f} ms" for k, v in per.items()))
+    return 0

@@ -1,0 +1,66 @@
+"""`dmdsm sim`: start the SIL emulator of both boards and print the two port names."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register `sim`."""
+    p = sub.add_parser("sim", help="run the emulator of both boards on pseudo-terminals")
+    p.add_argument("--scene", default="aluminium_block",
+                   help="objects on the turntable (--list-scenes shows them)")
+    p.add_argument("--list-scenes", action="store_true", help="print the scenes and exit")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="simulated seconds per wall-clock second (default 1)")
+    p.add_argument("--faults", default="",
+                   help="e.g. sensor.flip=1e-5,sensor.drop=1e-5,stage.lost_ok=0.01")
+    p.add_argument("--link-dir", default=None,
+                   help="also create stable symlinks DIR/sensor and DIR/stage")
+    p.add_argument("--temperature", type=float, default=20.0, help="air temperature (degC)")
+    p.add_argument("--rep-rate", type=float, default=1000.0, help="laser shots per second")
+    p.add_argument("--sensor-link", type=float, default=200_000.0,
+                   help="sensor link bytes/s (default 2 Mbaud: 200000; USB FS: 1150000)")
+    p.add_argument("--json", action="store_true", help="print the ports as one JSON line")
+    p.set_defaults(func=cmd_sim)
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    """Run until Ctrl-C (or SIGTERM)."""
+    from dmdsm.sim.physics.objects import SCENES
+    from dmdsm.sim.servers.pty_server import PtyServer
+    from dmdsm.sim.servers.runner import SimConfig, Simulation
+
+    from .errors import CliError
+
+    if args.list_scenes:
+        print("\n".join(SCENES))
+        return 0
+    if args.speed <= 0:
+        raise CliError("--speed must be positive")
+    try:
+        sim = Simulation(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
+                                   temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
+                                   sensor_link_bytes_per_s=args.sensor_link))
+    except (ValueError, TypeError) as e:
+        raise CliError(str(e)) from None
+    server = PtyServer(sim, speed=args.speed, link_dir=args.link_dir)
+    ports = {name: p.name_for_host for name, p in server.ports.items()}
+    if args.json:
+        print(json.dumps({"sensor": ports["sensor"], "stage": ports["stage"],
+                          "scene": args.scene, "seed": args.seed}), flush=True)
+    else:
+        print(f"sensor board: {ports['sensor']}\nstage board:  {ports['stage']}\n"
+              f"scene {args.scene}, seed {args.seed}, speed x{args.speed:g}; Ctrl-C stops",
+              flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    print("dmdsm sim: stopped", file=sys.stderr)
+    return 0

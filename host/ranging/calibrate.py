@@ -1,0 +1,171 @@
+"""Ranging calibration: reference pulses learned from data, and t0, c fitted with the stage as
+a ruler (pure functions; the procedure that moves the stage lives in range_cmd.py)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.fft as sfft
+
+from .matched_filter import MatchedFilter, Template, distance_mm, gaussian_pulse
+
+MODALITIES = ("oa", "us")
+
+
+@dataclass
+class RangeCal:
+    """t0 (s) and c (mm/s) of one modality, with their standard errors and the fit residual."""
+
+    modality: str
+    t0_s: float
+    c_mm_s: float
+    t0_std_s: float
+    c_std_mm_s: float
+    residual_mm: float  # rms distance residual of the fit
+    n: int
+
+
+def fit_range(t_s: np.ndarray, d_mm: np.ndarray, modality: str,
+              c_mm_s: float | None = None) -> RangeCal:
+    """Least squares of t = t0 + k d / c (k = 1 for OA, 2 for US) over known distances d;
+    with c_mm_s given (from the air temperature) only t0 is fitted (c_std reported as 0)."""
+    k = 1.0 if modality == "oa" else 2.0
+    t, d = np.asarray(t_s, float), np.asarray(d_mm, float)
+    good = np.isfinite(t) & np.isfinite(d)
+    t, d = t[good], d[good]
+    if len(t) < 3 or np.ptp(d) == 0:
+        raise ValueError("need at least three arrivals at different known distances")
+    if c_mm_s is not None:
+        r = t - k * d / c_mm_s
+        t0 = float(r.mean())
+        resid = r - t0
+        s2 = float(resid @ resid) / max(len(t) - 1, 1)
+        return RangeCal(modality, t0, float(c_mm_s), float(np.sqrt(s2 / len(t))), 0.0,
+                        float(np.sqrt(s2) * c_mm_s / k), len(t))
+    A = np.column_stack([np.ones_like(d), k * d])
+    coef, *_ = np.linalg.lstsq(A, t, rcond=None)
+    t0, inv_c = coef
+    resid = t - A @ coef
+    dof = max(len(t) - 2, 1)
+    s2 = float(resid @ resid) / dof
+    cov = s2 * np.linalg.inv(A.T @ A)
+    c = 1.0 / inv_c
+    return RangeCal(modality, float(t0), float(c), float(np.sqrt(cov[0, 0])),
+                    float(np.sqrt(cov[1, 1]) * c * c), float(np.sqrt(s2) * c / k), len(t))
+
+
+def dominant_frequency(x: np.ndarray, fs_hz: float) -> float:
+    """Power-weighted mean frequency (Hz) of a batch of waveform segments."""
+    p = (np.abs(sfft.rfft(x - x.mean(axis=1, keepdims=True), axis=1)) ** 2).mean(axis=0)
+    f = sfft.rfftfreq(x.shape[1], 1 / fs_hz)
+    return float((f * p).sum() / p.sum())
+
+
+def learn_template(x: np.ndarray, fs_hz: float, gate: tuple[int, int],
+                   half_width: int = 24, iterations: int = 3) -> Template:
+    """A reference pulse averaged from waveforms (n, N) whose echo lies in `gate`.
+
+    Start from a Gaussian pulse at the data's dominant frequency, then repeat: find each
+    arrival with the current template, shift every waveform (exactly, in the Fourier domain)
+    so its arrival sits at the same place, and average the aligned pulses.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[1]
+    lo, hi = gate
+    fc = dominant_frequency(x[:, lo:hi], fs_hz)
+    tmpl = gaussian_pulse(fs_hz, fc, 0.6)
+    w = 2 * np.pi * sfft.rfftfreq(n)  # rad per sample
+    X = sfft.rfft(x, axis=1)
+    for _ in range(iterations):
+        arr = MatchedFilter(tmpl, n)(x, gate=gate)
+        ok = np.isfinite(arr.index)
+        if ok.sum() < 2:
+            raise ValueError("too few echoes in the gate to learn a reference pulse")
+        shift = arr.index[ok] - n / 2  # move each arrival to the middle
+        aligned = sfft.irfft(X[ok] * np.exp(1j * np.outer(shift, w)), n=n, axis=1)
+        mean = aligned.mean(axis=0)
+        seg = mean[n // 2 - half_width:n // 2 + half_width + 1]
+        seg = seg / np.sqrt(np.dot(seg, seg))
+        tmpl = Template(seg, fs_hz, float(half_width))
+    return tmpl
+
+
+@dataclass
+class RangingSetup:
+    """What the scanner needs to turn waveforms into distances: per-modality template,
+    gate (samples) and calibration."""
+
+    fs_hz: float
+    templates: dict[str, Template]
+    gates: dict[str, tuple[int, int]]
+    cals: dict[str, RangeCal]
+
+    def save(self, path: Path) -> None:
+        """JSON with the templates' samples (readable, diffable)."""
+        Path(path).write_text(self.to_json())
+
+    def to_json(self) -> str:
+        """The setup as JSON text (what save() writes; scan files embed it)."""
+        obj = {"format": "dmdsm-ranging", "version": 1, "fs_hz": self.fs_hz,
+               "modalities": {m: {"template": self.templates[m].pulse.tolist(),
+                                  "center": self.templates[m].center,
+                                  "gate": list(self.gates[m]),
+                                  "calibration": asdict(self.cals[m])}
+                              for m in self.templates}}
+        return json.dumps(obj, indent=1)
+
+    @classmethod
+    def load(cls, path: Path) -> RangingSetup:
+        """Read a file written by save(); raises ValueError with what is wrong."""
+        try:
+            return cls.from_json(Path(path).read_text())
+        except OSError as e:
+            raise ValueError(f"{path}: not a readable ranging calibration ({e})") from None
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
+
+    @classmethod
+    def from_json(cls, text: str) -> RangingSetup:
+        """Parse to_json() text; raises ValueError with what is wrong."""
+        try:
+            obj = json.loads(text)
+            if obj.get("format") != "dmdsm-ranging":
+                raise ValueError("not a dmdsm ranging calibration")
+            fs = float(obj["fs_hz"])
+            mods = obj["modalities"]
+            return cls(fs, {m: Template(np.asarray(v["template"], float), fs,
+                                        float(v["center"])) for m, v in mods.items()},
+                       {m: tuple(v["gate"]) for m, v in mods.items()},
+                       {m: RangeCal(**v["calibration"]) for m, v in mods.items()})
+        except (KeyError, TypeError, json.JSONDecodeError) as e:
+            raise ValueError(f"not a readable ranging calibration ({e})") from None
+
+
+T0_MAX_S = 10e-6  # prior: trigger-to-emission delays are below 10 us
+
+
+K = {"oa": 1.0, "us": 2.0}  # one way, round trip
+
+
+def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int,
+             t0_s: float | None = None) -> tuple[int, int]:
+    """Samples where an echo from d mm can be: for any 0 <= t0 <= T0_MAX_S, or, with a
+    calibrated t0_s (s), within a few samples of t0_s + k d / c."""
+    t = K[modality] * d_mm / c_mm_s
+    if t0_s is not None:
+        return max(0, int((t0_s + t) * fs_hz) - 2), min(n, int((t0_s + t) * fs_hz) + 3)
+    return max(0, int(t * fs_hz) - 2), min(n, int((t + T0_MAX_S) * fs_hz) + 16)
+
+
+
+def range_waveforms(x: np.ndarray, phase_s: np.ndarray, setup: RangingSetup, modality: str,
+                    pretrigger: int = 0, gate: tuple[int, int] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (mm, NaN where no echo) and SNR (dB) for baseline-free waveforms."""
+    tmpl, cal = setup.templates[modality], setup.cals[modality]
+    arr = MatchedFilter(tmpl, x.shape[1])(x, gate=gate or setup.gates[modality])
+    t = arr.times_s(setup.fs_hz, phase_s, pretrigger)
+    return distance_mm(t, cal.t0_s, cal.c_mm_s, modality), arr.snr_db

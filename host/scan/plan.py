@@ -1,0 +1,186 @@
+"""Scan plans: what to scan and how (TOML or flags), expanded into stage points and checked
+against the machine envelope and the keep-outs of the object and the turntable before any move.
+
+The sensor stays in one plane in front of the object (the front plane, `standoff_mm` in front
+of the object's bounding cylinder along the beam); each point is (X, Z) in that plane plus a
+turntable angle. Points run angle by angle, level by level, and X back and forth so that
+consecutive points are one step apart.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dmdsm.marlin_patch import MachineLimits
+
+from ..links.safety import KeepOut, UnsafeMove, check_move
+
+MODALITIES = ("both", "oa", "us")
+
+
+class PlanError(ValueError):
+    """A scan plan that cannot be run; str() names the key and what to change."""
+
+
+@dataclass
+class ScanPlan:
+    """One scan: object, keep-out sizes (mm), raster (mm, deg), acquisition settings."""
+
+    object_id: str
+    material: str = ""
+    notes: str = ""
+    radius_mm: float = 30.0          # bounding cylinder about the table axis
+    height_mm: float = 40.0
+    levels_mm: list[float] = field(default_factory=lambda: [20.0])  # sensor Z above table
+    angles_deg: list[float] = field(default_factory=lambda: [0.0, 90.0, 180.0, 270.0])
+    half_width_mm: float = 35.0      # X raster: -half..+half about the table axis
+    step_mm: float = 1.0
+    standoff_mm: float = 8.0         # beam distance from the bounding cylinder to the sensor
+    average: int = 16                # laser shots averaged on board per point
+    samples: int = 1024
+    settle_s: float = 0.0            # dwell after each move (G4) before acquiring
+    feed_mm_min: float = 3000.0
+    modality: str = "both"           # which distances the scan is for (both are ranged)
+    turntable_radius_mm: float = 60.0
+    depth_margin_mm: float = 3.0     # echoes are searched standoff - m .. standoff + 2R + m
+
+    def validate(self) -> None:
+        """Raise PlanError naming the first bad value."""
+        if not self.object_id or any(c in self.object_id for c in "/\\ \t"):
+            raise PlanError("sample.object_id must be a non-empty name without spaces or "
+                            "slashes")
+        pos = {"radius_mm": self.radius_mm, "step_mm": self.step_mm,
+               "half_width_mm": self.half_width_mm, "average": self.average,
+               "samples": self.samples, "feed_mm_min": self.feed_mm_min}
+        for k, v in pos.items():
+            if not v > 0:
+                raise PlanError(f"{k} must be positive (got {v})")
+        if self.height_mm < 0 or self.settle_s < 0:
+            raise PlanError("height_mm and settle_s must not be negative")
+        if not self.levels_mm or not self.angles_deg:
+            raise PlanError("levels_mm and angles_deg need at least one value each")
+        if self.modality not in MODALITIES:
+            raise PlanError(f"modality must be one of {', '.join(MODALITIES)} "
+                            f"(got {self.modality!r})")
+        if self.step_mm > 2 * self.half_width_mm:
+            raise PlanError("step_mm is larger than the raster width (2 x half_width_mm)")
+
+    def to_toml(self) -> str:
+        """The plan as TOML text (what load_plan reads; stored in every scan file)."""
+        d = asdict(self)
+
+        def val(v: object) -> str:
+            if isinstance(v, str):
+                return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            if isinstance(v, list):
+                return "[" + ", ".join(val(x) for x in v) + "]"
+            return repr(float(v)) if isinstance(v, float) else str(v)
+
+        sample = ("object_id", "material", "notes")
+        obj = ("radius_mm", "height_mm", "turntable_radius_mm")
+        out = ["[sample]"] + [f"{k} = {val(d[k])}" for k in sample]
+        out += ["", "[object]"] + [f"{k} = {val(d[k])}" for k in obj]
+        out += ["", "[scan]"] + [f"{k} = {val(v)}" for k, v in d.items()
+                                 if k not in sample + obj]
+        return "\n".join(out) + "\n"
+
+    def hash(self) -> str:
+        """sha256 of the plan text: the identity used to resume."""
+        return hashlib.sha256(self.to_toml().encode()).hexdigest()
+
+
+def load_plan(path: Path, **overrides: object) -> ScanPlan:
+    """Read a plan TOML ([sample], [object], [scan]); flags given as overrides win."""
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except OSError as e:
+        raise PlanError(f"cannot read plan {path}: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise PlanError(f"{path} is not valid TOML: {e}") from None
+    flat: dict[str, object] = {}
+    for section in ("sample", "object", "scan"):
+        flat.update(doc.get(section, {}))
+    known = set(ScanPlan.__dataclass_fields__)
+    unknown = sorted(set(flat) - known)
+    if unknown:
+        raise PlanError(f"{path}: unknown key(s) {', '.join(unknown)} (see docs/scanning.md)")
+    flat.update({k: v for k, v in overrides.items() if v is not None})
+    if "object_id" not in flat:
+        raise PlanError(f"{path}: [sample] object_id is required")
+    try:
+        plan = ScanPlan(**flat)
+        plan.levels_mm = [float(x) for x in plan.levels_mm]
+        plan.angles_deg = [float(x) for x in plan.angles_deg]
+    except (TypeError, ValueError) as e:
+        raise PlanError(f"{path}: {e}") from None
+    plan.validate()
+    return plan
+
+
+@dataclass
+class Point:
+    """One planned measurement: stage X, Y, Z (mm), table angle (deg) and its indices."""
+
+    index: int
+    x: float
+    y: float
+    z: float
+    theta_deg: float
+    level: int
+    column: int
+    angle_index: int
+
+
+def expand(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:
+    """The plan's points in execution order, for beam direction v and table centre X_R."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    y = float(X_R[1] - (plan.radius_mm + plan.standoff_mm) * v[1])
+    xs = np.arange(-plan.half_width_mm, plan.half_width_mm + 1e-9, plan.step_mm)
+    pts: list[Point] = []
+    for ai, th in enumerate(plan.angles_deg):
+        for li, h in enumerate(plan.levels_mm):
+            cols = range(len(xs)) if (ai * len(plan.levels_mm) + li) % 2 == 0 else \
+                range(len(xs) - 1, -1, -1)
+            for ci in cols:
+                pts.append(Point(len(pts), float(X_R[0] + xs[ci]), y, float(X_R[2] + h),
+                                 float(th), li, ci, ai))
+    return pts
+
+
+def keep_outs(plan: ScanPlan, n: np.ndarray, X_R: np.ndarray) -> list[KeepOut]:
+    """The object's bounding cylinder and the turntable (its disc and the body below it)."""
+    n = np.asarray(n, float) / np.linalg.norm(n)
+    below = 1000.0
+    return [KeepOut(np.asarray(X_R, float), n, plan.radius_mm, plan.height_mm),
+            KeepOut(np.asarray(X_R, float) - below * n, n, plan.turntable_radius_mm, below)]
+
+
+def check_plan(points: list[Point], start: np.ndarray | None, limits: MachineLimits,
+               zones: list[KeepOut]) -> None:
+    """Raise UnsafeMove (naming the point) if any move of the scan, from `start` (the stage
+    now; None: only between the points) through every point, leaves the envelope or crosses
+    a keep-out."""
+    if not points:
+        return
+    targets = [np.array([p.x, p.y, p.z]) for p in points]
+    labels = [f"point {p.index}" for p in points]
+    if start is None:
+        here = targets[0]
+    else:  # the approach: along Y into the front plane first, then X and Z
+        here = np.asarray(start, float)
+        targets.insert(0, np.array([here[0], points[0].y, here[2]]))
+        labels.insert(0, "the approach to the front plane")
+    for label, t in zip(labels, targets):
+        for zone in zones:
+            try:
+                check_move(here, t, limits, zone)
+            except UnsafeMove as e:
+                raise UnsafeMove(f"scan plan refused before moving: {label} "
+                                 f"(X{t[0]:.1f} Y{t[1]:.1f} Z{t[2]:.1f}): {e}") from None
+        here = t

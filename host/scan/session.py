@@ -1,0 +1,120 @@
+"""A scan run into a database: check the plan, open or resume its file, measure, catalogue.
+
+`run_plan` is what `dmdsm scan` does without the terminal: the plan is checked against the
+machine and its keep-outs before anything moves, a scan of the same plan, calibration and
+ranging resumes where it stopped, and every finished point is on disk and catalogued. Ctrl-C
+or a lost board closes the file as `interrupted`; calling it again continues.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dmdsm.marlin_patch import load_machine
+
+from .. import __version__
+from ..files import file_hash
+from ..links.transport import LinkError
+from ..ranging.calibrate import RangingSetup
+from .catalogue import connect, record
+from .executor import PointRanger, ScanStats, run_scan
+from .plan import ScanPlan, check_plan, expand, keep_outs
+from .scanfile import ScanWriter, read_scan
+
+
+@dataclass
+class ScanRun:
+    """What a run did: its id and file, points on disk, and this run's statistics."""
+
+    scan_id: str
+    path: Path
+    points: int
+    planned: int
+    status: str  # "complete", "already complete" or "interrupted"
+    stats: ScanStats = field(default_factory=ScanStats)
+
+    def summary(self) -> dict:
+        """The JSON summary `dmdsm scan --json` prints (times in s and ms, rate in points/s)."""
+        s = self.stats
+        return {"scan_id": self.scan_id, "file": str(self.path), "points": self.points,
+                "stored_now": s.stored, "lost_waveforms": s.lost,
+                "wall_s": round(s.wall_s, 2),
+                "points_per_s": round(s.stored / s.wall_s, 3) if s.wall_s else 0,
+                "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()}}
+
+
+def scan_identity(plan: ScanPlan, calibration_toml: str, setup: RangingSetup) -> str:
+    """sha256 (hex) of what makes two runs the same scan: plan, calibration and ranging."""
+    return hashlib.sha256((plan.hash() + calibration_toml + setup.to_json()).encode()).hexdigest()
+
+
+def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
+             calibration_toml: str, setup: RangingSetup, db: Path, scan_id: str | None = None,
+             home: bool = True,
+             progress: Callable[[int, int, dict], None] | None = None,
+             on_start: Callable[[ScanWriter, int], None] | None = None) -> ScanRun:
+    """Scan `plan` with open clients into the database folder `db` (created if missing).
+
+    calibration is v, n, X_R from `load_calibration`; raises UnsafeMove before any motion if
+    a move of the plan leaves the envelope or enters a keep-out, ScanFileError if the file
+    cannot be resumed. The stage should be an open StageClient (its context manager
+    quick-stops it on Ctrl-C); the sensor is disarmed on Ctrl-C here."""
+    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    points = expand(plan, v, X_R)
+    machine, keep = load_machine(), keep_outs(plan, n, X_R)
+    check_plan(points, None, machine, keep)  # every move between points, before any motion
+    run_hash = scan_identity(plan, calibration_toml, setup)
+    scan_id = scan_id or f"{plan.object_id}-{run_hash[:8]}"
+    path = Path(db) / "scans" / f"{scan_id}.h5"
+    connect(Path(db), create=True).close()
+    if path.exists():
+        done = read_scan(path, waveforms=False)
+        if done.entry.get("status") == "complete":
+            return ScanRun(scan_id, path, done.n_points, len(points), "already complete")
+    if home:
+        stage.home()
+    here = stage.where()
+    check_plan(points[:1], np.array([here["X"], here["Y"], here["Z"]]), machine, keep)
+    sc = sensor.configure(n_samples=plan.samples, n_average=plan.average, pretrigger=0,
+                          trigger_timeout_ms=2000)
+    ident = dict(sensor.identity.fields)
+    ident["spec_hash"] = f"{ident['spec_hash']:016x}"
+    sensor_attrs = {**ident, "port": sensor.port_name,
+                    **{f"config_{k}": val for k, val in sc.items()}}
+    if path.exists():
+        writer = ScanWriter.resume(path, run_hash)
+    else:
+        writer = ScanWriter.create(
+            path, scan_id=scan_id, plan_text=plan.to_toml(), plan_hash=run_hash,
+            n_samples=sc["n_samples"], sensor=sensor_attrs, calibration=calibration,
+            calibration_toml=calibration_toml, ranging_json=setup.to_json(),
+            sample={"name": plan.object_id, "material": plan.material, "notes": plan.notes,
+                    "radius_mm": plan.radius_mm, "height_mm": plan.height_mm},
+            program_version=__version__)
+    run = ScanRun(scan_id, path, writer.n_done, len(points), "interrupted")
+    try:
+        record(Path(db), scan_id, n_planned=len(points))
+        if on_start is not None:
+            on_start(writer, len(points))
+        ranger = PointRanger(setup, plan, sc["n_samples"], sensor.identity.tick_hz)
+        run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
+        stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)
+        stage.wait()
+        run.status = "complete"
+    except KeyboardInterrupt:
+        try:
+            sensor.disarm()  # the stage is quick-stopped by its context manager
+        except LinkError:
+            pass
+        raise
+    finally:
+        run.points = writer.n_done
+        writer.close(run.status)
+        record(Path(db), scan_id, n_planned=len(points),
+               content_hash=file_hash(path) if run.status == "complete" else "")
+    return run

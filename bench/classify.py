@@ -17,6 +17,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from dmdsm.host.classify import materials as classify  # noqa: E402
 from dmdsm.host.classify.materials import (
     assemble,
     evaluate_loo,
@@ -24,7 +25,6 @@ from dmdsm.host.classify.materials import (
     fit,
     per_class_accuracy,
 )
-from dmdsm.host.classify import materials as classify  # noqa: E402
 from dmdsm.sim.data.dataset import make_database  # noqa: E402
 
 # Fig. 5 diagonal (the text of §V-B2 says 79.5 % for the apple, the abstract 79.0 %)

@@ -24,8 +24,8 @@ from dmdsm.host.commands.cli import main as dmdsm
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.ranging.procedure import calibrate_range
-from dmdsm.host.scan.points import scan_points, validate_block
 from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.points import scan_points, validate_block
 from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.sim.servers.pty_server import PtyServer
 from dmdsm.sim.servers.runner import SimConfig, Simulation

@@ -15,7 +15,7 @@ from ..links.stage import StageClient
 from ..ranging.calibrate import RangingSetup
 from ..scan.plan import PlanError, load_plan
 from ..scan.scanfile import ScanFileError, ScanWriter
-from ..scan.session import run_plan
+from ..scan.session import checked_points, finished_scan, run_plan
 from .errors import CliError
 
 log = logging.getLogger("dmdsm.scan")
@@ -52,6 +52,15 @@ def cmd_scan(args: argparse.Namespace) -> int:
         setup = RangingSetup.load(args.ranging)
     except ValueError as e:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
+    try:  # everything that needs no board is checked before a port is opened
+        checked_points(plan, cal)
+        done = finished_scan(plan, cal_text, setup, args.db, args.scan_id)
+    except ScanFileError as e:
+        raise CliError(str(e)) from None
+    if done is not None:
+        print(f"scan {done.scan_id} is complete ({done.points} points) in {done.path}; nothing "
+              f"to do (--scan-id NAME starts another)")
+        return 0
     cfg = load_config(args.config)
     state: dict = {}
 

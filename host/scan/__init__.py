@@ -7,11 +7,11 @@ from .plan import PlanError, ScanPlan, expand, load_plan
 from .points import scan_points, validate_block
 from .reconstruct import fit_box, object_points, stage_points
 from .scanfile import ScanData, ScanFileError, ScanWriter, read_scan
-from .session import ScanRun, run_plan
+from .session import ScanRun, checked_points, finished_scan, run_plan
 
 __all__ = [
     "CatalogueError", "expand", "find_scan", "fit_box", "list_scans", "load_plan", "object_points",
     "PlanError", "PointRanger", "read_scan", "run_plan", "run_scan", "scan_points", "ScanData",
     "ScanFileError", "ScanPlan", "ScanRun", "ScanStats", "ScanWriter", "stage_points",
-    "validate_block",
+    "validate_block", "checked_points", "finished_scan",
 ]

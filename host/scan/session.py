@@ -23,7 +23,7 @@ from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from .catalogue import connect, record
 from .executor import PointRanger, ScanStats, run_scan
-from .plan import ScanPlan, check_plan, expand, keep_outs
+from .plan import Point, ScanPlan, check_plan, expand, keep_outs
 from .scanfile import ScanWriter, read_scan
 
 
@@ -53,6 +53,36 @@ def scan_identity(plan: ScanPlan, calibration_toml: str, setup: RangingSetup) ->
     return hashlib.sha256((plan.hash() + calibration_toml + setup.to_json()).encode()).hexdigest()
 
 
+def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
+    """The plan's stage points, every move between them checked against the machine's
+    envelope and the keep-outs around the object and turntable; raises UnsafeMove. Needs no
+    board: call it before opening a port."""
+    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    points = expand(plan, v, X_R)
+    check_plan(points, None, load_machine(), keep_outs(plan, n, X_R))
+    return points
+
+
+def scan_path(plan: ScanPlan, calibration_toml: str, setup: RangingSetup, db: Path,
+              scan_id: str | None = None) -> tuple[str, Path]:
+    """The scan's id (default: object id + the first 8 hex digits of scan_identity) and file."""
+    scan_id = scan_id or f"{plan.object_id}-{scan_identity(plan, calibration_toml, setup)[:8]}"
+    return scan_id, Path(db) / "scans" / f"{scan_id}.h5"
+
+
+def finished_scan(plan: ScanPlan, calibration_toml: str, setup: RangingSetup, db: Path,
+                  scan_id: str | None = None) -> ScanRun | None:
+    """The scan of this plan if it is already complete in `db` (nothing left to do), else
+    None; raises ScanFileError if its file is not a readable scan. Needs no board."""
+    scan_id, path = scan_path(plan, calibration_toml, setup, db, scan_id)
+    if not path.exists():
+        return None
+    done = read_scan(path, waveforms=False)
+    if done.entry.get("status") != "complete":
+        return None
+    return ScanRun(scan_id, path, done.n_points, done.n_points, "already complete")
+
+
 def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
              calibration_toml: str, setup: RangingSetup, db: Path, scan_id: str | None = None,
              home: bool = True,
@@ -64,18 +94,15 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
     a move of the plan leaves the envelope or enters a keep-out, ScanFileError if the file
     cannot be resumed. The stage should be an open StageClient (its context manager
     quick-stops it on Ctrl-C); the sensor is disarmed on Ctrl-C here."""
-    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
-    points = expand(plan, v, X_R)
+    points = checked_points(plan, calibration)  # every move, before any motion
+    n, X_R = (np.asarray(calibration[k], float) for k in ("n", "X_R"))
     machine, keep = load_machine(), keep_outs(plan, n, X_R)
-    check_plan(points, None, machine, keep)  # every move between points, before any motion
+    done = finished_scan(plan, calibration_toml, setup, db, scan_id)
+    if done is not None:
+        return done
     run_hash = scan_identity(plan, calibration_toml, setup)
-    scan_id = scan_id or f"{plan.object_id}-{run_hash[:8]}"
-    path = Path(db) / "scans" / f"{scan_id}.h5"
+    scan_id, path = scan_path(plan, calibration_toml, setup, db, scan_id)
     connect(Path(db), create=True).close()
-    if path.exists():
-        done = read_scan(path, waveforms=False)
-        if done.entry.get("status") == "complete":
-            return ScanRun(scan_id, path, done.n_points, len(points), "already complete")
     if home:
         stage.home()
     here = stage.where()

@@ -127,3 +127,46 @@ def test_range_models():
     t = np.array([2e-6 + 10 / c])
     assert distance_mm(t, 2e-6, c, "oa")[0] == pytest.approx(10.0)
     assert distance_mm(t, 2e-6, c, "us")[0] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize("kind", ["us", "oa"])
+def test_no_reported_distance_is_far_outside_its_own_std(kind):
+    """From 5 to 40 dB: readings below the ambiguity SNR are flagged, and those reported lie
+    within 5 of their own std of the truth (a cycle slip is 20-50 std away)."""
+    tmpl, mf = (US if kind == "us" else OA), FILTERS[kind]
+    rng = np.random.default_rng(11)
+    reported = far = 0
+    for snr_db in (5, 10, 14, 16, 17, 18, 19, 20, 25, 40):
+        delays = rng.uniform(150, 850, 300)
+        x = np.stack([pulse_at(tmpl, d) for d in delays])
+        sigma = np.sqrt(tmpl.energy) / 10 ** (snr_db / 20)
+        r = mf(x + rng.normal(0, sigma, x.shape), min_snr_db=0.0)
+        ok = np.isfinite(r.index)
+        assert np.isfinite(r.index_std[ok]).all() and np.isnan(r.index_std[~ok]).all()
+        assert all("ambiguous" in s for s in r.reason[~ok])
+        reported += ok.sum()
+        far += (np.abs(r.index[ok] - delays[ok]) > 5 * r.index_std[ok]).sum()
+        if snr_db <= 10:
+            assert ok.sum() == 0  # far below the floor nothing is reported
+    assert reported > 1200
+    assert far <= 0.002 * reported
+
+
+@pytest.mark.parametrize("kind", ["us", "oa"])
+def test_each_reading_std_is_its_rmse_above_the_floor(kind):
+    tmpl, mf = (US if kind == "us" else OA), FILTERS[kind]
+    rng = np.random.default_rng(3)
+    delays = rng.uniform(150, 850, 2000)
+    x = np.stack([pulse_at(tmpl, d) for d in delays])
+    sigma = np.sqrt(tmpl.energy) / 10 ** (28 / 20)
+    r = mf(x + rng.normal(0, sigma, x.shape))
+    z = (r.index - delays) / r.index_std
+    assert np.sqrt(np.mean(z ** 2)) == pytest.approx(1.0, abs=0.12)
+
+
+def test_the_ambiguity_floor_follows_the_next_carrier_cycle():
+    # a narrow-band pulse has a next cycle nearly as high as its peak: a higher floor
+    narrow = MatchedFilter(gaussian_pulse(FS, 1.0e6, 0.3), N)
+    assert narrow.rho1 > FILTERS["us"].rho1 > FILTERS["oa"].rho1 > 0.1
+    assert narrow.ambiguity_snr_db > FILTERS["us"].ambiguity_snr_db > \
+        FILTERS["oa"].ambiguity_snr_db > 14

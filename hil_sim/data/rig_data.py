@@ -30,6 +30,7 @@ from .dataset import true_setup
 @dataclass
 class _Identity:
     tick_hz: int = TICK_HZ
+    adc_rate_hz: float = ADC_RATE_HZ
 
 
 @dataclass

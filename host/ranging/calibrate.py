@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import scipy.fft as sfft
 
-from .matched_filter import MatchedFilter, Template, distance_mm, gaussian_pulse
+from .matched_filter import MatchedFilter, Template, distance_mm, gaussian_pulse, rms_bandwidth
 
 MODALITIES = ("oa", "us")
 
@@ -29,32 +29,43 @@ class RangeCal:
 
 
 def fit_range(t_s: np.ndarray, d_mm: np.ndarray, modality: str,
-              c_mm_s: float | None = None) -> RangeCal:
-    """Least squares of t = t0 + k d / c (k = 1 for OA, 2 for US) over known distances d;
-    with c_mm_s given (from the air temperature) only t0 is fitted (c_std reported as 0)."""
+              c_mm_s: float | None = None, offsets_mm: np.ndarray | None = None) -> RangeCal:
+    """Least squares of t = t0 + k d / c (k = 1 for OA, 2 for US) over known distances d,
+    one independent point per surface spot; with c_mm_s given (from the air temperature)
+    only t0 is fitted (c_std reported as 0).
+
+    offsets_mm (n, p): where each point was taken on the target, relative to where d was
+    gauged (e.g. lateral and vertical mm); a tilted target adds g . offset to the path, and
+    g is fitted as a nuisance, so t0 and c refer to the gauged spot. The standard errors are
+    the least-squares ones from the residual scatter (spots far enough apart that their
+    surface scatter is independent)."""
     k = 1.0 if modality == "oa" else 2.0
     t, d = np.asarray(t_s, float), np.asarray(d_mm, float)
-    good = np.isfinite(t) & np.isfinite(d)
-    t, d = t[good], d[good]
-    if len(t) < 3 or np.ptp(d) == 0:
-        raise ValueError("need at least three arrivals at different known distances")
-    if c_mm_s is not None:
-        r = t - k * d / c_mm_s
-        t0 = float(r.mean())
-        resid = r - t0
-        s2 = float(resid @ resid) / max(len(t) - 1, 1)
-        return RangeCal(modality, t0, float(c_mm_s), float(np.sqrt(s2 / len(t))), 0.0,
-                        float(np.sqrt(s2) * c_mm_s / k), len(t))
-    A = np.column_stack([np.ones_like(d), k * d])
-    coef, *_ = np.linalg.lstsq(A, t, rcond=None)
-    t0, inv_c = coef
-    resid = t - A @ coef
-    dof = max(len(t) - 2, 1)
-    s2 = float(resid @ resid) / dof
+    off = np.zeros((len(t), 0)) if offsets_mm is None else \
+        np.asarray(offsets_mm, float).reshape(len(t), -1)
+    good = np.isfinite(t) & np.isfinite(d) & np.isfinite(off).all(axis=1)
+    t, d, off = t[good], d[good], off[good]
+    off = off[:, np.ptp(off, axis=0) > 0] if len(off) else off  # constant columns: no tilt
+    fixed = c_mm_s is not None
+    p = 1 + (not fixed) + off.shape[1]
+    if len(t) < p + 2 or np.ptp(d) == 0:
+        raise ValueError("need at least three arrivals at different known distances "
+                         f"(and {p + 2} in all with {off.shape[1]} target offsets)")
+    y = t - k * d / c_mm_s if fixed else t
+    cols = [np.ones_like(d)] + ([] if fixed else [k * d]) + [k * off[:, i] for i in
+                                                             range(off.shape[1])]
+    A = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    resid = y - A @ coef
+    s2 = float(resid @ resid) / (len(t) - p)
     cov = s2 * np.linalg.inv(A.T @ A)
-    c = 1.0 / inv_c
-    return RangeCal(modality, float(t0), float(c), float(np.sqrt(cov[0, 0])),
-                    float(np.sqrt(cov[1, 1]) * c * c), float(np.sqrt(s2) * c / k), len(t))
+    if fixed:
+        c, c_std = float(c_mm_s), 0.0
+    else:
+        c = 1.0 / coef[1]
+        c_std = float(np.sqrt(cov[1, 1]) * c * c)
+    return RangeCal(modality, float(coef[0]), c, float(np.sqrt(cov[0, 0])), c_std,
+                    float(np.sqrt(s2) * c / k), len(t))
 
 
 def dominant_frequency(x: np.ndarray, fs_hz: float) -> float:
@@ -159,6 +170,18 @@ def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int,
         return max(0, int((t0_s + t) * fs_hz) - 2), min(n, int((t0_s + t) * fs_hz) + 3)
     return max(0, int(t * fs_hz) - 2), min(n, int((t + T0_MAX_S) * fs_hz) + 16)
 
+
+
+def distance_std_mm(setup: RangingSetup, modality: str, snr_db: np.ndarray | float
+                    ) -> np.ndarray:
+    """Standard deviation (mm) of a distance read at this SNR: the Cramer-Rao bound of the
+    arrival (1 / (SNR beta) samples, which the matched filter reaches above the ambiguity
+    SNR) combined with the surface's own scatter, estimated as the ranging calibration's
+    residual on its target. The calibration's t0 error is common to every point (not here)."""
+    cal, tmpl = setup.cals[modality], setup.templates[modality]
+    snr = 10 ** (np.asarray(snr_db, float) / 20)
+    t_std = 1.0 / (np.maximum(snr, 1e-30) * rms_bandwidth(tmpl) * setup.fs_hz)
+    return np.hypot(cal.c_mm_s * t_std / K[modality], cal.residual_mm)
 
 
 def range_waveforms(x: np.ndarray, phase_s: np.ndarray, setup: RangingSetup, modality: str,

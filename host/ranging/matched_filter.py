@@ -20,6 +20,7 @@ import numpy as np
 import scipy.fft as sfft
 
 FINE = 16  # fine grid: points per sample for the refinement
+SLIP_Z = 4.0  # readings need the main lobe this many noise stds above the next carrier cycle
 TAPS = 10  # correlation samples each side used to predict it between samples
 NUGGET = 1e-7  # relative white floor in the predictor design (float32 rounding)
 
@@ -41,12 +42,14 @@ class Template:
 
 @dataclass
 class Arrivals:
-    """Per-waveform results: arrival (samples, fractional), amplitude, SNR (dB), validity."""
+    """Per-waveform results: arrival (samples, fractional) and its standard deviation,
+    amplitude, SNR (dB), validity."""
 
     index: np.ndarray      # sample index of the arrival in the waveform; NaN if none
     amplitude: np.ndarray  # matched-filter amplitude / template energy (~ pulse gain)
     snr_db: np.ndarray     # matched-filter output SNR
     reason: np.ndarray     # "" or why there is no arrival
+    index_std: np.ndarray  # std of index (samples): the Cramer-Rao bound at this SNR
 
     def times_s(self, fs_hz: float, phase_s: np.ndarray | float = 0.0,
                 pretrigger: int = 0) -> np.ndarray:
@@ -92,6 +95,11 @@ class MatchedFilter:
         self.coarse = interpolation_weights(power, n_samples, self.coarse_lags,
                                             self.coarse_offsets)
         self.fine = interpolation_weights(power, n_samples, self.fine_lags, self.offsets)
+        # accuracy: rms bandwidth (rad/sample) gives the bound, std = 1 / (SNR beta);
+        # ambiguity: the next carrier cycle of the correlation (rho1 of the main peak)
+        self.beta = rms_bandwidth(template)
+        self.rho1 = next_cycle_correlation(template)
+        self.ambiguity_snr_db = ambiguity_snr_db(self.rho1)
 
     def __call__(self, x: np.ndarray, gate: tuple[int, int] | None = None,
                  noise: slice | None = None, min_snr_db: float = 15.0,
@@ -104,7 +112,8 @@ class MatchedFilter:
             parts = [self(x[i:i + chunk], gate, noise, min_snr_db, chunk)
                      for i in range(0, len(x), chunk)]
             return Arrivals(*(np.concatenate([getattr(p, f) for p in parts])
-                              for f in ("index", "amplitude", "snr_db", "reason")))
+                              for f in ("index", "amplitude", "snr_db", "reason",
+                                        "index_std")))
         n_shots, n = x.shape
         lo, hi = gate or (0, n)
         sigma_c = _noise_sigma(x, noise) * np.sqrt(self.t.energy)  # correlation noise std
@@ -137,12 +146,18 @@ class MatchedFilter:
         index = k1 + frac + center
         # SNR from the refined peak: the integer-lag envelope misses up to ~4 dB of it
         snr_db = 20 * np.log10(np.maximum(np.abs(amp), 1e-30) / np.maximum(sigma_c, 1e-30))
-        ok = snr_db >= min_snr_db
+        floor = max(min_snr_db, self.ambiguity_snr_db)
+        ok = snr_db >= floor
         reason = np.full(n_shots, "", dtype=object)
         for i in np.nonzero(~ok)[0]:
-            reason[i] = f"no echo: SNR {snr_db[i]:.1f} dB < {min_snr_db:g} dB"
+            reason[i] = (f"no echo: SNR {snr_db[i]:.1f} dB < {min_snr_db:g} dB"
+                         if snr_db[i] < min_snr_db else
+                         f"ambiguous: SNR {snr_db[i]:.1f} dB < {floor:.1f} dB, where the "
+                         f"next carrier cycle can win (cycle slip)")
+        snr = 10 ** (snr_db.astype(float) / 20)
         return Arrivals(np.where(ok, index.astype(float), np.nan),
-                        amp.astype(float) / self.t.energy, snr_db.astype(float), reason)
+                        amp.astype(float) / self.t.energy, snr_db.astype(float), reason,
+                        np.where(ok, 1.0 / (np.maximum(snr, 1e-30) * self.beta), np.nan))
 
     def _refine(self, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fractional offset (samples) of the correlation maximum from its values `vals`
@@ -189,6 +204,33 @@ def crlb_samples(template: Template, sigma: float, gain: float = 1.0) -> float:
     w = 2 * np.pi * np.arange(spec.size) / n  # rad per sample
     deriv = np.fft.irfft(1j * w * spec, n=n)
     return float(sigma / (abs(gain) * np.sqrt(np.sum(deriv ** 2))))
+
+
+def rms_bandwidth(template: Template) -> float:
+    """beta (rad/sample): sqrt(sum s'^2 / sum s^2) of the band-limited pulse, so the
+    Cramer-Rao bound on the arrival is 1 / (SNR beta) samples at amplitude SNR
+    gain sqrt(E) / sigma (the matched filter's output SNR)."""
+    return float(1.0 / crlb_samples(template, 1.0, 1.0 / np.sqrt(template.energy)))
+
+
+def next_cycle_correlation(template: Template) -> float:
+    """rho1: the largest normalised autocorrelation of the pulse beyond its main lobe (the
+    next carrier cycle, about one period away), which a noisy peak can be mistaken for."""
+    p = np.asarray(template.pulse, float)
+    n = 1 << int(np.ceil(np.log2(4 * len(p))))
+    spec = np.fft.rfft(p, n=n)
+    fine = 8  # autocorrelation on a 1/8-sample grid: the cycle's crest between samples
+    r = np.fft.irfft(np.abs(spec) ** 2, n=n * fine)[: len(p) * fine] * fine
+    r = r / r[0]
+    first_zero = int(np.argmax(r < 0))  # end of the main lobe
+    return float(max(r[first_zero:].max(), 0.0)) if first_zero else 0.0
+
+
+def ambiguity_snr_db(rho1: float, z: float = SLIP_Z) -> float:
+    """SNR (dB) below which a reading is not reported: the main peak exceeds the next carrier
+    cycle by E (1 - rho1) against noise of std sigma sqrt(2 E (1 - rho1)), so a slip has
+    probability Q(SNR sqrt((1 - rho1) / 2)); require z standard deviations (z = 4: 3e-5)."""
+    return float(20 * np.log10(z * np.sqrt(2.0 / max(1.0 - rho1, 1e-6))))
 
 
 def distance_mm(t_s: np.ndarray, t0_s: float, c_mm_per_s: float, modality: str) -> np.ndarray:

@@ -13,7 +13,8 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
                     start_distance_mm: float, steps: int = 11, step_mm: float = 0.5,
                     shots: int = 10, average: int = 16, temperature_c: float = 20.0,
                     along_beam: float = 1.0 / TABLE_I["v"][1], fit_c: bool = True,
-                    lateral: int = 1, lateral_mm: float = 0.5) -> tuple[RangingSetup, dict]:
+                    lateral: int = 1, lateral_mm: float = 0.5, rise_mm: float = 0.5
+                    ) -> tuple[RangingSetup, dict]:
     """Step the sensor away from a flat target along Y, record, learn pulses, fit t0 and c.
 
     start_distance_mm is the known beam distance at `start` (a gauge block or feeler);
@@ -21,32 +22,40 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
     normal to Y; the paper's v by default). fit_c=False keeps c from the air temperature
     and fits t0 alone: better when the travel is short (c from 20 mm of travel is good to
     ~0.5 %, from a thermometer reading within 1 degC to 0.2 %). lateral > 1 also records
-    that many X positions lateral_mm apart at each depth (same distance on a face normal to
-    Y): the surface under the spot changes, so its roughness averages out of t0."""
+    that many X positions lateral_mm apart at each depth, centred on start (same distance on
+    a face normal to Y), and each depth is taken rise_mm higher or lower (in an order
+    unrelated to the depth, so a tilt of the target cannot pass for t0 or c): every record
+    is on a fresh surface spot, so the surface's scatter is independent between the points
+    of the fit and its standard errors hold. The target's tilt over these offsets is fitted
+    as a nuisance."""
     c0 = speed_of_sound_mm_s(temperature_c)
     fs = sensor.identity.adc_rate_hz
     n = sensor.configure(n_samples=1024, n_average=average, pretrigger=0,
                          trigger_timeout_ms=2000)["n_samples"]
-    waves, phases, dists, lats = [], [], [], []
+    waves, phases, dists, spots, offs = [], [], [], [], []
+    heights = np.random.default_rng(0).permutation(steps)  # fixed, unrelated to the depth
     for i in range(steps):
+        dz = rise_mm * (float(heights[i]) - (steps - 1) / 2)  # centred on the gauged spot
         for j in range(lateral):
-            stage.move(x=start["X"] + j * lateral_mm, y=start["Y"] - i * step_mm,
-                       z=start["Z"], wait=True)
+            dx = lateral_mm * (j - (lateral - 1) / 2)
+            stage.move(x=start["X"] + dx, y=start["Y"] - i * step_mm,
+                       z=start["Z"] + dz)
             stage.wait()
             got = sensor.acquire(shots)
             ok = got.received
             waves.append(got.samples[ok].astype(float) - 32768.0)
             phases.append(got.trigger_phase[ok] / sensor.identity.tick_hz)
             dists.append(np.full(ok.sum(), start_distance_mm + i * step_mm * along_beam))
-            lats.append(np.full(ok.sum(), j))
+            spots.append(np.full(ok.sum(), i * lateral + j))
+            offs.append(np.tile([dx, dz], (ok.sum(), 1)))
     x, ph, d = np.vstack(waves), np.concatenate(phases), np.concatenate(dists)
-    lat = np.concatenate(lats)
+    spot, off = np.concatenate(spots), np.vstack(offs)
     templates, gates, cals, report = {}, {}, {}, {}
     for m in MODALITIES:
         g = [gate_for(di, m, fs, c0, n) for di in d]
         lo, hi = min(a for a, _ in g), max(b for _, b in g)
         try:
-            tmpl = learn_template(x[(d == d[0]) & (lat == 0)], fs, g[0])
+            tmpl = learn_template(x[spot == 0], fs, g[0])
         except ValueError:
             report[m] = "no echo (this target gives none in this modality)"
             continue
@@ -56,11 +65,12 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
             sel = d == di
             idx[sel] = mf(x[sel], gate=gate_for(di, m, fs, c0, n)).index
         t = idx / fs + ph
-        # one point per position: shots at one position share its surface scatter, so
+        # one point per surface spot: shots at one spot share its surface scatter, so
         # fitting them separately would overstate the precision
-        pos = np.unique(d)
-        t_pos = np.array([_depth_time(t, d == di, lat, lateral) for di in pos])
-        cal = fit_range(t_pos, pos, m, None if fit_c else c0)
+        ids = np.unique(spot)
+        t_spot = np.array([_spot_time(t[spot == s]) for s in ids])
+        first = np.array([np.argmax(spot == s) for s in ids])
+        cal = fit_range(t_spot, d[first], m, None if fit_c else c0, off[first])
         templates[m], gates[m], cals[m] = tmpl, (lo, hi), cal
         report[m] = (f"t0 {cal.t0_s * 1e6:.4f} +/- {cal.t0_std_s * 1e6:.4f} us, "
                      f"c {cal.c_mm_s / 1e3:.2f} +/- {cal.c_std_mm_s / 1e3:.2f} m/s "
@@ -71,9 +81,6 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
     return RangingSetup(fs, templates, gates, cals), report
 
 
-def _depth_time(t: np.ndarray, sel: np.ndarray, lat: np.ndarray, lateral: int) -> float:
-    """Arrival time (s) at one depth: the mean over lateral positions of each one's median
-    over its shots (NaN if no shot there has an arrival)."""
-    meds = [np.nanmedian(t[sel & (lat == j)]) for j in range(lateral)
-            if np.isfinite(t[sel & (lat == j)]).any()]
-    return float(np.mean(meds)) if meds else np.nan
+def _spot_time(t: np.ndarray) -> float:
+    """Arrival time (s) at one surface spot: the median over its shots (NaN if none)."""
+    return float(np.nanmedian(t)) if np.isfinite(t).any() else np.nan

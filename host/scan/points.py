@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..ranging.calibrate import RangingSetup, distance_std_mm
 from .reconstruct import fit_box, object_points, stage_points
 from .scanfile import ScanData
 
@@ -11,9 +12,15 @@ MODS = ("oa", "us")
 
 
 def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
-    """Per modality: object-frame points (mm) and their point index, level, angle, d, S."""
+    """Per modality: object-frame points (mm) and their point index, level, angle, d, S, and
+    d_std (mm): each distance's own standard deviation (ranging.distance_std_mm) from its
+    SNR and the scan's ranging setup (NaN if the file carries no readable setup)."""
     cal = scan.calibration
     p = scan.points
+    try:
+        setup = RangingSetup.from_json(scan.ranging_json)
+    except (ValueError, AttributeError):
+        setup = None
     out = {}
     for m in MODS:
         d = p[f"distance_{m}_mm"]
@@ -21,18 +28,29 @@ def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
         S = p["stage_position_mm"][ok]
         X = stage_points(S, d[ok], np.asarray(cal["v"]))
         P = object_points(X, p["theta_deg"][ok], np.asarray(cal["n"]), np.asarray(cal["X_R"]))
+        std = (distance_std_mm(setup, m, p[f"snr_{m}_db"][ok])
+               if setup is not None and m in setup.cals else np.full(ok.sum(), np.nan))
         out[m] = {"P": P, "index": p["point_index"][ok], "level": p["level"][ok],
-                  "theta_deg": p["theta_deg"][ok], "d": d[ok], "S": S, "X": X}
+                  "theta_deg": p["theta_deg"][ok], "d": d[ok], "d_std": std, "S": S, "X": X}
     return out
 
 
 def validate_block(pts: dict, size_xy: tuple[float, float]) -> dict[str, dict]:
-    """The paper's metric per modality: fitted outline pose and e = d(X_ij, E_i) (mm)."""
+    """The paper's metric per modality: fitted outline pose and e = d(X_ij, E_i) (mm), as
+    mean and spread (std) like the paper, the mean's standard error, and the RMS of e over
+    each point's own distance std (about 1 where the per-point stds hold)."""
     out = {}
     for m in MODS:
-        if len(pts[m]["P"]) >= 4:
-            f = fit_box(pts[m]["P"], size_xy)
+        P = pts[m]["P"]
+        if len(P) >= 4:
+            f = fit_box(P, size_xy)
+            std = np.asarray(pts[m].get("d_std", np.full(len(P), np.nan)), float)
+            std = std[np.all(np.isfinite(P), axis=1)]
+            z = f.e_mm / std
             out[m] = {"n": f.n, "e_mean_mm": f.mean_mm, "e_std_mm": f.std_mm,
+                      "e_mean_se_mm": f.std_mm / np.sqrt(f.n),
+                      "e_over_std_rms": float(np.sqrt(np.mean(z ** 2))) if
+                      np.isfinite(z).all() else float("nan"),
                       "e_median_mm": float(np.median(f.e_mm)),
                       "pose": {"x_mm": f.pose[0], "y_mm": f.pose[1], "yaw_deg": f.pose[2]}}
     return out

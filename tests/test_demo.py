@@ -1,5 +1,5 @@
-"""The quick demo end to end (the user's first command), its report's figures checked against
-the paper's targets."""
+"""The full demo end to end (`make demo`, the user's first command, with the same plans), its
+report's figures checked against the paper's targets and its ± against the emulator's truth."""
 
 import json
 import subprocess
@@ -10,13 +10,15 @@ import numpy as np
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
 
 
-def test_quick_demo_meets_the_paper_and_writes_the_report(tmp_path):
+def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "demo", "--quick", "--out",
-                        str(out)], capture_output=True, text=True, timeout=900)
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "demo", "--out", str(out)],
+                       capture_output=True, text=True, timeout=1500)
     summary = json.loads((out / "summary.json").read_text())
     st = summary["stages"]
     assert st["1"]["ok"], r.stdout + r.stderr
+    for m in ("oa", "us"):  # the ranging calibration's t0 within 4 of its std of the truth
+        assert abs(st["1"]["values"][m]["z"]) < 4, st["1"]["values"]
     rig = st["2"]["values"]
     assert rig["v_error_deg"] < 2.0 and rig["n_error_deg"] < 0.5 and rig["X_R_error_mm"] < 0.3
     for m, (mean, std) in PAPER.items():
@@ -25,8 +27,10 @@ def test_quick_demo_meets_the_paper_and_writes_the_report(tmp_path):
         # ranging + scanning + reconstruction: the paper's figure within 3 standard errors
         assert g["e_mean_mm"] <= mean + 3 * g["e_std_mm"] / np.sqrt(g["n"]), (m, g)
         assert g["e_std_mm"] <= std + 3 * g["e_std_mm"] / np.sqrt(2 * (g["n"] - 1)), (m, g)
-        # with the quick (coarse) rig calibration of stage 2
-        assert v["calibrated"]["e_mean_mm"] <= mean + 0.1, (m, v["calibrated"])
+        # with the rig calibration of stage 2
+        assert v["calibrated"]["e_mean_mm"] <= mean + 3 * g["e_std_mm"] / np.sqrt(g["n"]), v
+        # each distance's own std holds: e over it has an RMS near 1
+        assert 0.7 < g["e_over_std_rms"] < 1.4, (m, g)
     house = st["4"]["values"]
     assert {h["material"] for h in house.values()} == {
         "aluminium", "apple", "foam", "glass", "paper", "plastic", "steel"}
@@ -46,4 +50,4 @@ def test_quick_demo_meets_the_paper_and_writes_the_report(tmp_path):
     # Fig. 2, Fig. 3, seven Fig. 4s, three Fig. 5s
     assert html.count("data:image/png;base64,") >= 12
     assert "Table I" in html and "0.06 ± 0.06" in html
-    assert summary["seconds"] < 300, summary["seconds"]
+    assert summary["seconds"] < 900, summary["seconds"]

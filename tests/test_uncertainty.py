@@ -35,3 +35,18 @@ def test_ranging_calibration_stds_hold_over_seeds(fit_c):
         z = np.array([r[key] for r in zs])
         assert np.abs(z).max() < 4, (key, z)
         assert 0.4 < np.sqrt(np.mean(z ** 2)) < 1.7, (key, z)
+
+
+def test_each_scanned_distance_carries_a_std_that_holds():
+    """The block plan (one level) ranged as `dmdsm scan` does: (d - true d) / d_std has an
+    RMS near 1 in both modalities, so a point's ± is one a user can trust."""
+    from dmdsm.sim.data.block_data import block_rig, ranging_calibration, scan_block
+
+    rig = block_rig(7)
+    rows = scan_block(rig, ranging_calibration(rig), [20.0], step_mm=2.0)
+    for m, a in rows.items():
+        a = a[np.isfinite(a[:, 2])]
+        assert len(a) > 60, m
+        z = (a[:, 0] - a[:, 2]) / a[:, 1]
+        assert 0.75 < np.sqrt(np.mean(z ** 2)) < 1.3, (m, np.sqrt(np.mean(z ** 2)))
+        assert np.mean(np.abs(z) > 4) < 0.02, m

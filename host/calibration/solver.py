@@ -191,10 +191,16 @@ class CalibrationResult:
     # per center point at the solution: tip (k, 3) mm from the fitted tip; edge (m,) mm
     # from the fitted filament line; theta_deg (F,) fitted minus read table angle
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
+    # factors on the tip and edge center points' lateral covariances (Sigma_P / n), from the
+    # residuals: a raster's centroid scatters less (or more) than its points' spread / n
+    lateral_scale: tuple[float, float] = (1.0, 1.0)
 
 
-def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
-    """SVD estimates (eqs. 2-7), then the joint MLE (eq. 8) by Levenberg-Marquardt."""
+def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bool = True
+          ) -> CalibrationResult:
+    """SVD estimates (eqs. 2-7), then the joint MLE (eq. 8) by Levenberg-Marquardt; the
+    depth scatters and lateral scales are estimated from the residuals unless
+    scatter_from_residuals is False (the covariances as given, as for the bound)."""
     v0, tip0 = estimate_v(data.tip_S, data.tip_d)
     frames = np.unique(data.edge_frame)
     if len(frames) < 2:
@@ -230,6 +236,7 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         return v, n, xr, q, pt, tip, th
 
     extra = [0.0, 0.0]  # variances (mm^2) added to each tip and edge depth: see below
+    scale = [1.0, 1.0]  # factors on the tip and edge center points' lateral covariances
 
     def residuals(p: np.ndarray, whiten: bool = True, depth: bool = False) -> np.ndarray:
         """Whitened residuals; depth=True: the tips' and the edges' unwhitened residuals
@@ -237,9 +244,13 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         v, n, xr, q, pt, tip, th = unpack(p)
         # a tip point's noise: its stage reading covariance plus its depth variance along v
         X = data.tip_S + data.tip_d[:, None] * v - tip
-        cov = tip_cS + tip_vd[:, None, None] * np.outer(v, v)
+        cov = scale[0] * tip_cS + tip_vd[:, None, None] * np.outer(v, v)
         if depth:
             out = [X @ v, np.einsum("i,kij,j->k", v, cov, v)]
+            Bt = tangent_basis(v)  # across the beam: the raster's lateral plane
+            lat = X @ Bt
+            cl = np.einsum("ai,kab,bj->kij", Bt, tip_cS, Bt)
+            lat_chi = [float(np.einsum("ki,kij,kj->", lat, np.linalg.inv(cl), lat))]
         elif whiten:
             cov = cov + extra[0] * np.outer(v, v)
             W = np.linalg.cholesky(np.linalg.inv(cov))  # (k, 3, 3)
@@ -254,12 +265,15 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
             rel = X - pi
             B = tangent_basis(li)
             perp = (rel - np.outer(rel @ li, li)) @ B  # across the line
-            cov = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B) + \
-                edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+            cS = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B)
+            cov = scale[1] * cS + edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
             if depth:
                 e = unit(B.T @ v)
                 r.append(perp @ e)
                 dvar.append(np.einsum("i,kij,j->k", e, cov, e))
+                w = np.array([-e[1], e[0]])  # across the line, across the beam
+                lat_chi.append(float(np.sum((perp @ w) ** 2 /
+                                            np.einsum("i,kij,j->k", w, cS, w))))
                 continue
             if whiten:
                 cov = cov + extra[1] * np.outer(B.T @ v, B.T @ v)
@@ -267,7 +281,7 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
                 perp = np.einsum("ki,kij->kj", perp, W)
             r.append(perp.ravel())
         if depth:
-            return out + [np.concatenate(r[1:]), np.concatenate(dvar)]
+            return out + [np.concatenate(r[1:]), np.concatenate(dvar), lat_chi]
         if whiten:
             r.append((th - np.asarray(thetas)) / data.sigma_theta_deg)
         return np.concatenate(r)
@@ -286,9 +300,20 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
         new = [max(0.0, float(np.sum(r ** 2) / (len(r) - k) - np.mean(var)))
                if len(r) > k else 0.0
                for r, var, k in ((res[0], res[1], 1), (res[2], res[3], 4))]
-        if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)):
+        # the lateral covariances (Sigma_P / n of the raster points above threshold, §IV-C)
+        # are scaled to their residuals: a centroid of fixed raster positions moves only as
+        # points cross the threshold, far less than the points' spread / n says
+        k, m = len(data.tip_d), len(data.edge_d)
+        dof = (2 * k - 4, m - 2 * F)
+        new_scale = [min(max(c / d, 0.01), 100.0) if d > 0 else 1.0
+                     for c, d in zip(res[4][:1] + [sum(res[4][1:])], dof)]
+        if not scatter_from_residuals:
+            break
+        if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)) and \
+                all(abs(a - b) <= 0.02 * max(a, b) for a, b in zip(new_scale, scale)):
             break
         extra[:] = new
+        scale[:] = new_scale
     v, n, xr, *_ = unpack(sol.x)
     J = sol.jac
     cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
@@ -309,7 +334,7 @@ def solve(data: CalibrationData, refine: bool = True) -> CalibrationResult:
            "theta_deg": unpack(sol.x)[6] - np.asarray(thetas)}
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
                              cov, rms_mm, svd, float(np.sqrt(extra[1])),
-                             float(np.sqrt(extra[0])), res)
+                             float(np.sqrt(extra[0])), res, (float(scale[0]), float(scale[1])))
 
 
 def cramer_rao_bound(design: CalibrationData) -> np.ndarray:
@@ -317,7 +342,7 @@ def cramer_rao_bound(design: CalibrationData) -> np.ndarray:
     for a design: noise-free center points of the true parameters, with the noise levels in
     its sigmas / per-point covariances. It is the inverse Fisher information of the whitened
     model at the truth, where the MLE's covariance and the bound coincide."""
-    r = solve(design)
+    r = solve(design, scatter_from_residuals=False)
     if r.rms_residual_mm > 1e-6:
         raise CalibrationError(f"a design must be noise-free center points of the true "
                                f"parameters (rms residual {r.rms_residual_mm:.2g} mm)")

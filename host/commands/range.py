@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..ranging.calibrate import MODALITIES, RangingSetup, range_waveforms
+from ..ranging.calibrate import MODALITIES, RangingSetup, distance_std_mm, range_waveforms
 from ..ranging.matched_filter import speed_of_sound_mm_s
 from ..ranging.procedure import calibrate_range
 
@@ -102,12 +102,15 @@ def cmd_range(args: argparse.Namespace) -> int:
     except (OSError, KeyError) as e:
         raise CliError(f"{args.file}: not a dmdsm acquisition file ({e})") from None
     dist, snr = range_waveforms(x, phase, setup, args.modality, pre)
+    std = np.where(np.isfinite(dist), distance_std_mm(setup, args.modality, snr), np.nan)
     if args.json:
         print(json.dumps({"shot_id": ids.tolist(), "distance_mm": [
-            None if np.isnan(v) else v for v in dist.tolist()], "snr_db": snr.tolist()}))
+            None if np.isnan(v) else v for v in dist.tolist()], "distance_std_mm": [
+            None if np.isnan(v) else v for v in std.tolist()], "snr_db": snr.tolist()}))
     else:
-        for i, v, s in zip(ids, dist, snr):
-            print(f"{i:6d} {'no echo' if np.isnan(v) else f'{v:10.4f} mm'}  SNR {s:5.1f} dB")
+        for i, v, sd, s in zip(ids, dist, std, snr):
+            print(f"{i:6d} {'no reading' if np.isnan(v) else f'{v:10.4f} ± {sd:.4f} mm'}  "
+                  f"SNR {s:5.1f} dB")
         good = dist[np.isfinite(dist)]
         if good.size:
             print(f"{good.size} of {len(dist)} shots: mean {good.mean():.4f} mm, "

@@ -8,6 +8,7 @@ the device's counters account for every lost shot. Nothing that failed its CRC i
 
 from __future__ import annotations
 
+import random
 import threading
 import time
 from dataclasses import dataclass, field
@@ -78,7 +79,9 @@ class SensorClient:
         self.timeout_s = timeout_s
         self.retries = retries
         self.expected_hash = expected_hash
-        self.seq = 0
+        # a random first sequence number: a board still holding an earlier client's last
+        # answer (or a firmware that answers repeats from its cache) never hands it to us
+        self.seq = random.randrange(0x10000)
         self.cond = threading.Condition()
         self.responses: dict[int, Message] = {}
         self.logs: list[Message] = []

@@ -243,11 +243,30 @@ static void test_bad_frames(void)
 static void test_retransmission_executes_once(void)
 {
     reset();
+    struct dmdsm_arm m = {.n_shots = 3};
+    uint8_t p[4];
     arm(9, 3);
-    arm(9, 3); /* the same command again after a lost ack */
+    /* the same command again after a lost ack */
+    send(DMDSM_MSG_ARM, 9, DMDSM_FLAG_RETRANSMIT, p, dmdsm_pack_arm(&m, p));
     drain();
     CHECK(n_msgs == 2 && msgs[0].type == DMDSM_MSG_ACK && msgs[1].type == DMDSM_MSG_ACK);
     CHECK(B.arms == 1);
+}
+
+static void test_a_new_client_never_gets_an_old_answer(void)
+{
+    reset();
+    uint8_t p[4] = {1, 2, 3, 4};
+    send(DMDSM_MSG_PING, 1, 0, p, 4); /* e.g. the stage client probing the wrong port */
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_PONG);
+    send(DMDSM_MSG_IDENTIFY, 1, 0, NULL, 0); /* a new sensor client, also at seq 1 */
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_IDENTIFY_REPLY && msgs[0].seq == 1);
+    /* a retransmission of another type at the last seq is executed, not answered stale */
+    send(DMDSM_MSG_PING, 1, DMDSM_FLAG_RETRANSMIT, p, 4);
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_PONG);
 }
 
 static void test_averaging_and_shot_ids(void)
@@ -420,6 +439,7 @@ int main(void)
     test_config_validation();
     test_bad_frames();
     test_retransmission_executes_once();
+    test_a_new_client_never_gets_an_old_answer();
     test_averaging_and_shot_ids();
     test_u32_sums_do_not_overflow();
     test_busy_link_drops_whole_shots();

@@ -86,3 +86,15 @@ def test_keep_out_geometry():
         assert "keep-out" in str(e)
     check_move(start, np.array([320.0, 380.0, 120.0]) + [0, 0, 0], limits,
                KeepOut(keep.X_R, keep.n, 40.0, 10.0))  # over a short object
+
+
+def test_the_sensor_answers_its_new_client_after_the_swapped_port_check(emulator):
+    """`dmdsm stage where` on the sensor's port (the swapped-ports check pings it) must not
+    leave an answer that a later sensor client receives in place of its own (issue 19)."""
+    emu = emulator()
+    r = dmdsm("stage", "where", "--stage", emu.sensor)
+    assert r.returncode == 2 and "sensor" in r.stderr and "Traceback" not in r.stderr
+    for _ in range(3):
+        r = dmdsm("info", "--sensor", emu.sensor, "--json")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["identity"]["board"].startswith("SIL sensor board")

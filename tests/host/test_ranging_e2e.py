@@ -92,7 +92,11 @@ def test_calibrate_range_and_range_commands(emulator, tmp_path):
                  ).returncode == 0
     r = dmdsm("range", str(h5), "--calibration", str(cal), "--modality", "us", "--json")
     assert r.returncode == 0, r.stderr
-    d = np.array([v for v in json.loads(r.stdout)["distance_mm"] if v is not None])
-    assert len(d) >= 5 and abs(np.median(d) - truth) < 0.5
+    out = json.loads(r.stdout)
+    d = np.array([v for v in out["distance_mm"] if v is not None])
+    sd = np.array([v for v in out["distance_std_mm"] if v is not None])
+    assert len(d) >= 5 and len(sd) == len(d) and abs(np.median(d) - truth) < 0.5
+    # each distance's own std: the surface scatter (~0.2 mm for US) and the noise at its SNR
+    assert (sd > 0.05).all() and abs(np.median(d) - truth) < 4 * np.median(sd)
     r = dmdsm("range", str(h5), "--calibration", str(tmp_path / "none.json"))
     assert r.returncode == 2 and "calibrate-range" in r.stderr

@@ -178,10 +178,14 @@ void dmdsm_core_rx(struct dmdsm_core *c, const uint8_t *p, size_t n)
             r == DMDSM_RX_OVERSIZE)
             continue; /* not answered: the host's timeout and retry cover it */
         c->count.rx_frames++;
-        if (c->have_last && f.seq == c->last_seq) {
+        /* only a retransmission (flag set, same seq and type as the last command) is
+         * answered from the cache: a new client's first command with an old seq runs */
+        if (c->have_last && (f.flags & DMDSM_FLAG_RETRANSMIT) && f.seq == c->last_seq &&
+            f.type == c->last_cmd) {
             dmdsm_core_queue_ctl(c, c->last_resp, c->last_resp_len); /* retransmission */
             continue;
         }
+        c->last_cmd = f.type;
         if (r == DMDSM_RX_BAD_VERSION)
             nak(c, &f, DMDSM_ERROR_BAD_VERSION, 0);
         else if (r == DMDSM_RX_UNKNOWN_TYPE)

@@ -59,6 +59,7 @@ struct dmdsm_core {
     uint8_t rx_buf[DMDSM_CORE_RX_CAP];
     bool have_last;    /* last command's seq and response, for retransmissions */
     uint16_t last_seq;
+    uint8_t last_cmd; /* type of the last command answered (for retransmissions) */
     uint8_t last_resp[DMDSM_CORE_CTL_FRAME];
     size_t last_resp_len;
     /* transmit: control frames first, then waveforms */

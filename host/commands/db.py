@@ -60,7 +60,11 @@ def _scan_file(args: argparse.Namespace) -> ScanData:
     if not args.scan_id:
         raise CliError(f"db {args.action} needs a SCAN_ID (`dmdsm db list --db {args.db}`)")
     try:
-        return read_scan(Path(find_scan(args.db, args.scan_id)["path"]))
+        row = find_scan(args.db, args.scan_id)
+        if row["status"].startswith("refused"):
+            raise CliError(f"{args.scan_id}: {row['status']}; run `dmdsm db rebuild --db "
+                           f"{args.db}` to index the files in the database again")
+        return read_scan(Path(row["path"]))
     except (CatalogueError, ScanFileError) as e:
         raise CliError(str(e)) from None
 

@@ -74,8 +74,13 @@ def list_scans(db_dir: Path, object_id: str | None = None,
         args = [v for _, v in where]
     rows = [dict(zip(COLUMNS, r)) for r in con.execute(q + " ORDER BY started, scan_id", args)]
     con.close()
+    scans = (Path(db_dir) / "scans").resolve()
     for r in rows:
-        r["path"] = str(Path(db_dir) / r["path"])
+        p = (Path(db_dir) / r["path"]).resolve()
+        if p.parent != scans:  # a row pointing elsewhere (edited, or absolute) is not opened
+            r["status"] = f"refused: {r['path']!r} is not a file in {scans}"
+            p = scans / f"{r['scan_id']}.refused"
+        r["path"] = str(p)
     return rows
 
 
@@ -90,8 +95,11 @@ def find_scan(db_dir: Path, scan_id: str) -> dict:
 
 
 def verify(row: dict) -> str:
-    """'ok', 'changed' (hash differs), 'missing' or 'unfinished' for a catalogue row."""
+    """'ok', 'changed' (hash differs), 'missing', 'unfinished' or 'refused' (its path leads
+    out of the database) for a catalogue row."""
     p = Path(row["path"])
+    if str(row.get("status", "")).startswith("refused"):
+        return "refused"
     if not p.exists():
         return "missing"
     if not row["content_hash"]:

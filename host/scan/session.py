@@ -9,6 +9,7 @@ or a lost board closes the file as `interrupted`; calling it again continues.
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from ..ranging.calibrate import RangingSetup
 from .catalogue import connect, record
 from .executor import PointRanger, ScanStats, run_scan
 from .plan import Point, ScanPlan, check_plan, expand, keep_outs
-from .scanfile import ScanWriter, read_scan
+from .scanfile import ScanFileError, ScanWriter, read_scan
 
 
 @dataclass
@@ -63,10 +64,17 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     return points
 
 
+SCAN_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
 def scan_path(plan: ScanPlan, calibration_toml: str, setup: RangingSetup, db: Path,
               scan_id: str | None = None) -> tuple[str, Path]:
-    """The scan's id (default: object id + the first 8 hex digits of scan_identity) and file."""
+    """The scan's id (default: object id + the first 8 hex digits of scan_identity) and file,
+    always db/scans/<id>.h5: an id that is a path (/, .., absolute) is refused."""
     scan_id = scan_id or f"{plan.object_id}-{scan_identity(plan, calibration_toml, setup)[:8]}"
+    if not SCAN_ID.fullmatch(scan_id) or ".." in scan_id:
+        raise ScanFileError(f"scan id {scan_id!r} is not a name: use letters, digits, '.', '_' "
+                            f"and '-' (at most 100, no '..'); the file goes in {db}/scans/")
     return scan_id, Path(db) / "scans" / f"{scan_id}.h5"
 
 

@@ -21,3 +21,6 @@ def proto_tool() -> Path:
     if not path.exists():
         subprocess.run(["make", "-C", str(ROOT), "build/host/proto_tool"], check=True)
     return path
+
+
+from emulator_fixture import emulator  # noqa: E402,F401  (hil_sim on ptys, one per test)

@@ -302,11 +302,14 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
                for r, var, k in ((res[0], res[1], 1), (res[2], res[3], 4))]
         # the lateral covariances (Sigma_P / n of the raster points above threshold, §IV-C)
         # are scaled to their residuals: a centroid of fixed raster positions moves only as
-        # points cross the threshold, far less than the points' spread / n says
+        # points cross the threshold, far less than the points' spread / n says;
+        # one factor for both (both are centroids of raster points above a threshold):
+        # pooled over tips and edges it has ~14 degrees of freedom, where the tips' own 4
+        # would let it collapse towards 0 in one seed of a hundred
         k, m = len(data.tip_d), len(data.edge_d)
-        dof = (2 * k - 4, m - 2 * F)
-        new_scale = [min(max(c / d, 0.01), 100.0) if d > 0 else 1.0
-                     for c, d in zip(res[4][:1] + [sum(res[4][1:])], dof)]
+        dof = (2 * k - 4) + (m - 2 * F)
+        s = min(max(sum(res[4]) / dof, 0.01), 100.0) if dof > 0 else 1.0
+        new_scale = [s, s]
         if not scatter_from_residuals:
             break
         if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)) and \

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from dmdsm.protocol import tool as protocol_tool
 
 from .. import __version__
 from ..calibration.solver import CalibrationError
+from ..classify.materials import ClassifyError
 from ..links.config import ConfigError
 from ..links.safety import UnsafeMove
 from ..links.transport import LinkError
+from ..scan.catalogue import CatalogueError
+from ..scan.plan import PlanError
+from ..scan.scanfile import ScanFileError
 from . import calibrate, classify, db, devices, flash, range, scan, sim
 from .errors import CliError
 
@@ -44,16 +49,42 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(args.out, main, quick=args.quick)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, taken as Ctrl-C: every command's Ctrl-C path (disarm the board, quick-stop
+    the stage, keep what was measured) runs for it too."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run `dmdsm`; returns the process exit code (2 for user errors, 130 for Ctrl-C)."""
+    """Run `dmdsm`; returns the process exit code (2 for user errors, 130 for Ctrl-C, 143
+    for SIGTERM)."""
     args = build_parser().parse_args(argv)
+    try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread (a test or the demo calling main): leave it
+        previous = None
+    try:
+        return _run(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return args.func(args)
     except (CliError, protocol_tool.ToolError, flash.FlashError, LinkError, ConfigError,
-            UnsafeMove, CalibrationError) as e:
+            UnsafeMove, CalibrationError, CatalogueError, PlanError, ScanFileError,
+            ClassifyError) as e:
         print(f"dmdsm: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        if isinstance(e, Terminated) or isinstance(e.__cause__, Terminated):
+            print("dmdsm: terminated", file=sys.stderr)
+            return 143
         print("dmdsm: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import sys
 import tomllib
 from pathlib import Path
 
@@ -88,7 +89,11 @@ def cmd_db(args: argparse.Namespace) -> int:
                       f"{r['check']}")
             return 0
         if args.action == "rebuild":
-            print(f"indexed {rebuild(args.db)} scan files in {args.db}")
+            n, skipped = rebuild(args.db)
+            for line in skipped:
+                print(f"dmdsm: skipped {line}", file=sys.stderr)
+            print(f"indexed {n} scan files in {args.db}" +
+                  (f"; {len(skipped)} left out (above)" if skipped else ""))
             return 0
     except CatalogueError as e:
         raise CliError(str(e)) from None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -113,15 +114,33 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_shots(path: Path, shots: object, identity: dict, port: str) -> None:
-    """HDF5, NeXus-like: /entry/instrument/sensor, /entry/data/waveforms (n, n_samples)."""
+def check_output(path: Path) -> None:
+    """Refuse an output file that cannot be written, before anything is measured."""
+    from .errors import CliError
+
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise CliError(f"{path} is a folder: name a file to write (e.g. {path / 'shots.h5'})")
+    if not folder.is_dir():
+        raise CliError(f"cannot write {path}: the folder {folder} does not exist; create it "
+                       f"or name another file")
+    if not os.access(folder, os.W_OK):
+        raise CliError(f"cannot write {path}: no permission to write in {folder}")
+
+
+def write_shots(path: Path, shots: object, identity: dict, port: str,
+                status: str = "complete") -> None:
+    """HDF5, NeXus-like: /entry/instrument/sensor, /entry/data/waveforms (n, n_samples);
+    status "interrupted" keeps only the shots that arrived."""
     import h5py
 
     tmp = path.with_suffix(path.suffix + ".part")
     with h5py.File(tmp, "w") as f:
         f.attrs.update(format_name="dmdsm-shots", format_version="1", default="entry")
         e = f.create_group("entry")
-        e.attrs.update(NX_class="NXentry", default="data", created=time.strftime("%FT%T%z"))
+        e.attrs.update(NX_class="NXentry", default="data", created=time.strftime("%FT%T%z"),
+                       status=status)
         s = e.create_group("instrument").create_group("sensor")
         s.attrs.update(NX_class="NXdetector", port=port,
                        **{k: v for k, v in identity.items() if k != "spec_hash"},
@@ -134,8 +153,10 @@ def write_shots(path: Path, shots: object, identity: dict, port: str) -> None:
         for name in ("received", "timestamp", "trigger_phase", "n_average"):
             d.create_dataset(name, data=getattr(shots, name))
         d.create_dataset("shot_id", data=np.arange(len(shots.received)))
-        d.attrs.update(device_dropped=shots.device_dropped, adc_overruns=shots.adc_overruns,
-                       link_rejected=shots.link_rejected, lost=len(shots.lost))
+        d.attrs.update(device_dropped=getattr(shots, "device_dropped", 0),
+                       adc_overruns=getattr(shots, "adc_overruns", 0),
+                       link_rejected=getattr(shots, "link_rejected", 0),
+                       lost=len(shots.lost))
     tmp.replace(path)
 
 
@@ -143,11 +164,12 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     """Arm for N shots with a progress bar, then write them and report losses."""
     from tqdm import tqdm
 
-    from ..links.sensor import SensorClient
+    from ..links.sensor import AcquisitionInterrupted, SensorClient
 
     if args.shots <= 0:
         from .errors import CliError
         raise CliError("--shots must be positive")
+    check_output(args.output)  # before anything is measured
     sc = SensorClient(resolve_port("sensor", args.sensor, load_config(args.config)))
     try:
         cfg = {k: v for k, v in (("n_average", args.average), ("n_samples", args.samples))
@@ -159,8 +181,12 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 bar.update(n - bar.n)
             try:
                 shots = sc.acquire(args.shots, progress=progress)
-            except KeyboardInterrupt:
-                sc.disarm()
+            except AcquisitionInterrupted as e:  # the board is disarmed: keep what arrived
+                got = int(e.shots.received.sum())
+                write_shots(args.output, e.shots, dict(sc.identity.fields), sc.port_name,
+                            status="interrupted")
+                print(f"\ndmdsm: acquisition stopped after {got} of {args.shots} shots; they "
+                      f"are saved in {args.output}", file=sys.stderr)
                 raise
         write_shots(args.output, shots, dict(sc.identity.fields), sc.port_name)
     finally:

@@ -26,6 +26,15 @@ ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
 CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
 
 
+class AcquisitionInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM) during acquire(): the board was disarmed; `shots` holds what had
+    arrived (received marks them), so the caller can keep it."""
+
+    def __init__(self, shots: Shots) -> None:
+        super().__init__("acquisition interrupted")
+        self.shots = shots
+
+
 class SensorError(LinkError):
     """The sensor board refused or failed; str() says what to do."""
 
@@ -274,6 +283,13 @@ class SensorClient:
             shots.armed_s = time.monotonic()
             self._collect(shots, n_shots, cfg, timeout_s, progress)
             shots.done_s = time.monotonic()
+        except KeyboardInterrupt as e:
+            self.shots = None
+            try:  # never leave the board armed: the next acquire would be refused (busy)
+                self.disarm()
+            except LinkError:
+                pass
+            raise AcquisitionInterrupted(shots) from e  # the cause: Ctrl-C or SIGTERM
         finally:
             self.shots = None
         after = self.status()

@@ -43,8 +43,18 @@ def connect(db_dir: Path, create: bool = False) -> sqlite3.Connection:
             raise CatalogueError(f"{db_dir} is not a scan database (no such directory); "
                                  f"`dmdsm scan -o {db_dir}` creates one")
         (db_dir / "scans").mkdir(parents=True)
-    con = sqlite3.connect(db_dir / "catalogue.sqlite", timeout=30)
-    con.execute(SCHEMA)
+    path = db_dir / "catalogue.sqlite"
+    try:
+        con = sqlite3.connect(path, timeout=30)
+        con.execute(SCHEMA)
+        bad = [c for c in COLUMNS if c not in
+               {r[1] for r in con.execute("PRAGMA table_info(scans)")}]
+        if bad:
+            con.close()
+            raise sqlite3.DatabaseError(f"table scans lacks {', '.join(bad)}")
+    except sqlite3.DatabaseError as e:
+        raise CatalogueError(f"{path} is damaged ({e}); `dmdsm db rebuild --db {db_dir}` "
+                             f"makes a new one from the scan files") from None
     return con
 
 
@@ -107,16 +117,27 @@ def verify(row: dict) -> str:
     return "ok" if file_hash(p) == row["content_hash"] else "changed"
 
 
-def rebuild(db_dir: Path) -> int:
-    """Re-index every readable scans/*.h5 (after copying files in); returns rows written."""
-    n = 0
-    for path in sorted((Path(db_dir) / "scans").glob("*.h5")):
+def rebuild(db_dir: Path) -> tuple[int, list[str]]:
+    """Re-index every readable scans/*.h5 (after copying files in, or over a damaged
+    catalogue, which is kept aside as catalogue.sqlite.damaged); returns the rows written and
+    one line per file left out."""
+    db_dir = Path(db_dir)
+    try:
+        connect(db_dir).close()
+    except CatalogueError:
+        if not db_dir.is_dir():
+            raise
+        (db_dir / "catalogue.sqlite").replace(db_dir / "catalogue.sqlite.damaged")
+        connect(db_dir).close()
+    n, skipped = 0, []
+    for path in sorted((db_dir / "scans").glob("*.h5")):
         try:
             s = read_scan(path, waveforms=False)
-        except ScanFileError:
+        except ScanFileError as e:
+            skipped.append(str(e))
             continue
         done = s.entry.get("status") == "complete"
         record(db_dir, path.stem, n_planned=s.n_points if done else -1,
                content_hash=file_hash(path) if done else "")
         n += 1
-    return n
+    return n, skipped

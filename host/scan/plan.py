@@ -10,6 +10,7 @@ consecutive points are one step apart.
 from __future__ import annotations
 
 import hashlib
+import math
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -69,6 +70,25 @@ class ScanPlan:
                             f"(got {self.modality!r})")
         if self.step_mm > 2 * self.half_width_mm:
             raise PlanError("step_mm is larger than the raster width (2 x half_width_mm)")
+        numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int)}
+        numbers.update({f"levels_mm[{i}]": x for i, x in enumerate(self.levels_mm)})
+        numbers.update({f"angles_deg[{i}]": x for i, x in enumerate(self.angles_deg)})
+        for k, v in numbers.items():
+            if not math.isfinite(v):
+                raise PlanError(f"{k} must be a finite number (got {v})")
+        for k, (lo, hi) in _sensor_limits().items():  # the protocol's ranges (set_config)
+            if not lo <= getattr(self, k) <= hi:
+                raise PlanError(f"{k} = {getattr(self, k)} is outside what the sensor board "
+                                f"takes ({lo}..{hi})")
+        n = self.n_points()
+        if n > MAX_POINTS:
+            raise PlanError(f"the plan has {n:.3g} points (at most {MAX_POINTS}): raise step_mm "
+                            f"or lower half_width_mm, or split the scan into several plans")
+
+    def n_points(self) -> int:
+        """How many points the plan expands to (levels x angles x raster columns)."""
+        columns = math.floor(2 * self.half_width_mm / self.step_mm + 1e-9) + 1
+        return len(self.levels_mm) * len(self.angles_deg) * columns
 
     def to_toml(self) -> str:
         """The plan as TOML text (what load_plan reads; stored in every scan file)."""
@@ -94,6 +114,19 @@ class ScanPlan:
         return hashlib.sha256(self.to_toml().encode()).hexdigest()
 
 
+MAX_POINTS = 200_000  # ~4 h of step and shoot; bounds the memory and time of a plan's check
+
+
+def _sensor_limits() -> dict[str, tuple[int, int]]:
+    """samples and average: the ranges of set_config's n_samples and n_average."""
+    from dmdsm.protocol import load_spec
+
+    (msg,) = [m for m in load_spec().messages if m.name == "set_config"]
+    f = {x.name: x for x in msg.fields}
+    return {"samples": (f["n_samples"].min, f["n_samples"].max),
+            "average": (f["n_average"].min, f["n_average"].max)}
+
+
 def load_plan(path: Path, **overrides: object) -> ScanPlan:
     """Read a plan TOML ([sample], [object], [scan]); flags given as overrides win."""
     try:
@@ -113,6 +146,9 @@ def load_plan(path: Path, **overrides: object) -> ScanPlan:
     flat.update({k: v for k, v in overrides.items() if v is not None})
     if "object_id" not in flat:
         raise PlanError(f"{path}: [sample] object_id is required")
+    if "levels_mm" not in flat:
+        raise PlanError(f"{path}: [scan] levels_mm is required (the sensor heights above the "
+                        f"table, mm, e.g. levels_mm = [12.0, 24.0])")
     try:
         plan = ScanPlan(**flat)
         plan.levels_mm = [float(x) for x in plan.levels_mm]

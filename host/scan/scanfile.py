@@ -190,11 +190,62 @@ class ScanWriter:
                                      end_time=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
 
+PROBE_S = 20.0  # a damaged file read in SWMR mode can retry for ever: a child gets this long
+_PROBE = """
+import sys, h5py
+with h5py.File(sys.argv[1], "r", swmr=True) as f:
+    d = f["/entry/data"]
+    for k in d:
+        d[k][-1:]
+    for k in ("/entry", "/entry/sample", "/entry/instrument/sensor"):
+        dict(f[k].attrs)
+"""
+
+
+def _probe_swmr(path: Path) -> None:
+    """Read a file marked open for writing (a live or crashed writer) in SWMR mode in a child
+    process, bounded in time: HDF5 retries damaged metadata in SWMR mode without end."""
+    import subprocess
+    import sys
+
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE, str(path)], capture_output=True,
+                           text=True, timeout=PROBE_S)
+    except subprocess.TimeoutExpired:
+        raise ScanFileError(f"{path} is damaged: reading it did not finish in {PROBE_S:g} s; "
+                            f"restore it from a copy or scan again with --scan-id") from None
+    if r.returncode:
+        last = (r.stderr.strip().splitlines() or ["?"])[-1]
+        raise ScanFileError(f"{path} is damaged ({last[:200]}); restore it from a copy or "
+                            f"scan again with --scan-id")
+
+
+def open_scan_file(path: Path) -> object:
+    """The HDF5 file for reading: plainly when it was closed properly (a damaged file fails
+    at once), in SWMR mode after a bounded probe when a writer holds it or left it open."""
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except FileNotFoundError:
+        raise ScanFileError(f"{path}: no such file") from None
+    except OSError as e:
+        msg = str(e).lower()
+        if "unable to lock" not in msg and "already open" not in msg:
+            raise ScanFileError(f"{path}: cannot open as HDF5 ({e})") from None
+    _probe_swmr(path)
+    try:
+        return h5py.File(path, "r", swmr=True)
+    except OSError as e:
+        raise ScanFileError(f"{path}: cannot open as HDF5 ({e})") from None
+
+
 def _recover(path: Path) -> None:
     """Copy what a crashed writer left (readable in SWMR mode) into a fresh file."""
     import h5py
 
     tmp = path.with_suffix(".recovering.h5")
+    _probe_swmr(path)
     with h5py.File(path, "r", swmr=True) as src, h5py.File(tmp, "w", libver="latest") as dst:
         dst.attrs.update(dict(src.attrs))
         for k in src:
@@ -207,30 +258,42 @@ def _recover(path: Path) -> None:
 
 def read_scan(path: Path, waveforms: bool = True) -> ScanData:
     """A scan file's finished points (also while it is being written)."""
-    import h5py
 
     path = Path(path)
+    f = open_scan_file(path)
     try:
-        f = h5py.File(path, "r", swmr=True)
-    except OSError as e:
-        raise ScanFileError(f"{path}: cannot open as HDF5 ({e})") from None
-    with f:
-        if f.attrs.get("format_name") != "dmdsm-scan":
-            raise ScanFileError(f"{path} is not a dmdsm scan file (no format_name "
-                                f"'dmdsm-scan')")
-        ver = str(f.attrs.get("format_version"))
-        if ver.split(".")[0] != FORMAT_VERSION:
-            raise ScanFileError(f"{path} has scan format {ver}; this dmdsm reads "
-                                f"{FORMAT_VERSION}.x — upgrade dmdsm")
-        d = f["/entry/data"]
-        n = _finished(d)
-        ins = f["/entry/instrument"]
-        return ScanData(
-            path=path, entry=_attrs(f["/entry"]), sensor=_attrs(ins["sensor"]),
-            calibration=_attrs(ins["calibration"]),
-            ranging_json=str(ins["ranging"].attrs["json"]), sample=_attrs(f["/entry/sample"]),
-            waveforms=d["waveforms"][:n] if waveforms else np.zeros((n, 0), np.uint16),
-            points={name: d[name][:n] for name in POINT_FIELDS})
+        with f:
+            return _read(f, path, waveforms)
+    except (KeyError, ValueError, TypeError, OSError, RuntimeError, IndexError) as e:
+        raise ScanFileError(f"{path} is damaged or not a complete dmdsm scan file "
+                            f"({type(e).__name__}: {str(e)[:200]})") from None
+
+
+MAX_POINTS_READ = 5_000_000  # a file declaring more is refused, not read into memory
+
+
+def _read(f: object, path: Path, waveforms: bool) -> ScanData:
+    """The checked contents of an open scan file."""
+    if f.attrs.get("format_name") != "dmdsm-scan":
+        raise ScanFileError(f"{path} is not a dmdsm scan file (no format_name "
+                            f"'dmdsm-scan')")
+    ver = str(f.attrs.get("format_version"))
+    if ver.split(".")[0] != FORMAT_VERSION:
+        raise ScanFileError(f"{path} has scan format {ver}; this dmdsm reads "
+                            f"{FORMAT_VERSION}.x — upgrade dmdsm")
+    d = f["/entry/data"]
+    n = _finished(d)
+    shape = d["waveforms"].shape
+    if n > MAX_POINTS_READ or len(shape) != 2 or shape[1] > 65536:
+        raise ScanFileError(f"{path} declares {n} points of {shape[1:]} samples: more than "
+                            f"a scan holds; not read")
+    ins = f["/entry/instrument"]
+    return ScanData(
+        path=path, entry=_attrs(f["/entry"]), sensor=_attrs(ins["sensor"]),
+        calibration=_attrs(ins["calibration"]),
+        ranging_json=str(ins["ranging"].attrs["json"]), sample=_attrs(f["/entry/sample"]),
+        waveforms=d["waveforms"][:n] if waveforms else np.zeros((n, 0), np.uint16),
+        points={name: d[name][:n] for name in POINT_FIELDS})
 
 
 def scan_summary(scan: ScanData) -> dict:

@@ -37,12 +37,12 @@ class Link:
         self.port.write(data)
 
     def request(self, name: str, timeout: float = 3.0, seq: int | None = None,
-                **fields: object) -> Message:
+                flags: int = 0, **fields: object) -> Message:
         """Send one command and return its response; unsolicited frames are kept."""
         if seq is None:
             self.seq = (self.seq + 1) & 0xFFFF
             seq = self.seq
-        self.port.write(encode_frame(Message(name, seq=seq, **fields)))
+        self.port.write(encode_frame(Message(name, seq=seq, flags=flags, **fields)))
         end = time.monotonic() + timeout
         response = None
         while response is None and time.monotonic() < end:

@@ -108,10 +108,19 @@ def test_garbage_is_counted_and_the_link_recovers(dut):
 def test_retransmitted_command_runs_once(dut):
     configure(dut, n_average=8)
     a = dut.request("arm", seq=4242, n_shots=3)
-    b = dut.request("arm", seq=4242, n_shots=3)  # same seq: the ack was "lost"
+    # the ack was "lost": the same bytes again, flagged as a retransmission
+    b = dut.request("arm", seq=4242, flags=SPEC.flags["retransmit"], n_shots=3)
     assert a.name == b.name == "ack"
     waves = dut.waveforms(6, timeout=2.0)
     assert [w.shot_id for w in waves] == [0, 1, 2]
+
+
+def test_a_new_client_at_an_old_seq_gets_its_own_answer(dut):
+    """Only a retransmission is answered from the cache (issue 19): a ping at the seq of the
+    last command, unflagged, is executed and answered with its own pong."""
+    a = dut.request("get_status", seq=4343)
+    b = dut.request("ping", seq=4343, nonce=77)
+    assert a.name == "status" and b.name == "pong" and b.seq == 4343 and b.nonce == 77
 
 
 def test_unknown_and_wrong_version_frames_are_naked(dut):

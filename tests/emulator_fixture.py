@@ -1,4 +1,4 @@
-"""hil_sim on pseudo-terminals in a background thread, one per test."""
+"""The `emulator` fixture: hil_sim on pseudo-terminals in a background thread, one per test."""
 
 import threading
 

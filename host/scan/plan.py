@@ -80,8 +80,9 @@ class ScanPlan:
             if not lo <= getattr(self, k) <= hi:
                 raise PlanError(f"{k} = {getattr(self, k)} is outside what the sensor board "
                                 f"takes ({lo}..{hi})")
-        n = self.n_points()
-        if n > MAX_POINTS:
+        n = len(self.levels_mm) * len(self.angles_deg) * \
+            (2 * self.half_width_mm / self.step_mm + 1)  # float: no huge integers
+        if not n <= MAX_POINTS:
             raise PlanError(f"the plan has {n:.3g} points (at most {MAX_POINTS}): raise step_mm "
                             f"or lower half_width_mm, or split the scan into several plans")
 

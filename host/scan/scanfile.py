@@ -287,6 +287,10 @@ def _read(f: object, path: Path, waveforms: bool) -> ScanData:
     if n > MAX_POINTS_READ or len(shape) != 2 or shape[1] > 65536:
         raise ScanFileError(f"{path} declares {n} points of {shape[1:]} samples: more than "
                             f"a scan holds; not read")
+    for name, (_, shp) in POINT_FIELDS.items():
+        if d[name].shape[1:] != shp:
+            raise ScanFileError(f"{path}: /entry/data/{name} has shape {d[name].shape}, not "
+                                f"(points, {', '.join(map(str, shp))}): not a dmdsm scan file")
     ins = f["/entry/instrument"]
     return ScanData(
         path=path, entry=_attrs(f["/entry"]), sensor=_attrs(ins["sensor"]),

@@ -23,7 +23,7 @@ def test_an_output_that_cannot_be_written_is_refused_first(emulator, tmp_path):
         assert time.perf_counter() - t0 < 15
         assert r.returncode == 2 and words in r.stderr and "Traceback" not in r.stderr
         assert len(r.stderr.strip().splitlines()) == 1
-    assert emu.sim.sensor.core.state() == 0  # never armed
+    assert emu.sim.sensor.core.state == 0  # never armed
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])

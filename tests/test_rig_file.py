@@ -19,11 +19,11 @@ from dmdsm.host.calibration.rig_file import (
 )
 from dmdsm.host.calibration.solver import CalibrationError
 
-finite = st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False)
+finite = st.floats(-9999, 9999, allow_nan=False, allow_infinity=False)
 row = st.fixed_dictionaries({
     "step": st.sampled_from(["tip", "edge"]), "frame": st.integers(0, 50),
     "line": st.integers(0, 50), "theta_deg": finite, "sx_mm": finite, "sy_mm": finite,
-    "sz_mm": finite, "d_mm": st.one_of(finite, st.just(float("nan"))),
+    "sz_mm": finite, "d_mm": st.one_of(st.floats(0, 9999), st.just(float("nan"))),
     "amplitude": st.floats(0, 1e6), "modality": st.sampled_from(["oa", "us"])})
 
 

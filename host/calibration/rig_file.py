@@ -90,7 +90,35 @@ def read_raw(path: Path) -> dict[str, np.ndarray]:
         except ValueError:
             raise CalibrationError(f"{path}: column {c} has a value that is not a "
                                    f"number") from None
+    _check_rows(path, out)
     return out
+
+
+LIMIT_MM = 10_000.0  # no stage position or distance of this machine comes near it
+
+
+def _check_rows(path: Path, raw: dict[str, np.ndarray]) -> None:
+    """Refuse rows no procedure writes, naming the first (its line in a CSV file)."""
+    def bad(mask: np.ndarray, what: str) -> None:
+        if mask.any():
+            i = int(np.argmax(mask))
+            raise CalibrationError(f"{path}: row {i + 1} (line {i + 2}): {what}; fix or delete "
+                                   f"the row, or record the step again with --replace")
+
+    bad(~np.isin(raw["step"], ("tip", "edge")), "step must be tip or edge")
+    bad(~np.isin(raw["modality"], ("oa", "us")), "modality must be oa or us")
+    for c in ("sx_mm", "sy_mm", "sz_mm"):
+        bad(~(np.abs(raw[c]) < LIMIT_MM), f"{c} must be a stage position in mm")
+    for c in ("frame", "line"):
+        v = raw[c]
+        bad(~((v >= 0) & (v < 1e6) & (v == np.round(v))), f"{c} must be a whole number >= 0")
+    d = raw["d_mm"]  # NaN: no echo at that point
+    bad(~np.isnan(d) & ~((d >= 0) & (d < LIMIT_MM)), "d_mm must be a distance >= 0 mm or "
+        "empty (no echo)")
+    a = raw["amplitude"]
+    bad(~np.isnan(a) & ~((a >= 0) & np.isfinite(a)), "amplitude must be >= 0 or empty")
+    th = raw["theta_deg"]
+    bad(~np.isnan(th) & ~(np.abs(th) < 1e5), "theta_deg must be an angle in degrees or empty")
 
 
 class RawWriter:

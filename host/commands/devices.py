@@ -195,9 +195,16 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     summary = {"file": str(args.output), "shots": args.shots, "received": got,
                "lost": int(len(shots.lost)), "device_dropped": shots.device_dropped,
                "link_rejected": shots.link_rejected, "adc_overruns": shots.adc_overruns}
+    hint = ""
+    if shots.device_dropped:  # the board had no room for them: the link is the bottleneck
+        summary["hint"] = hint = (
+            "the board dropped shots it could not send in time: average more shots per "
+            "waveform (--average), take fewer samples (--samples) or lower the laser's "
+            "repetition rate")
     _out(args, summary, f"wrote {args.output}: {got} of {args.shots} shots; lost "
          f"{len(shots.lost)} (device dropped {shots.device_dropped}, link rejected "
-         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns})")
+         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns})"
+         + (f"\nhint: {hint}" if hint else ""))
     return 0
 
 

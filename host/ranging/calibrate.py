@@ -138,6 +138,29 @@ class RangingSetup:
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
 
+    def check(self) -> None:
+        """Raise ValueError naming the first value no ranging calibration has."""
+        if not (np.isfinite(self.fs_hz) and 1e3 < self.fs_hz < 1e10):
+            raise ValueError(f"fs_hz {self.fs_hz} is not a sample rate")
+        if not self.cals or not set(self.cals) <= set(MODALITIES) or \
+                set(self.templates) != set(self.cals) or set(self.gates) != set(self.cals):
+            raise ValueError("modalities must be oa and/or us, each with a template, a gate "
+                             "and a calibration")
+        for m, tmpl in self.templates.items():
+            p = tmpl.pulse
+            if p.ndim != 1 or not 3 <= p.size <= 4096 or not np.isfinite(p).all() or \
+                    not p.any() or not 0 <= tmpl.center < p.size:
+                raise ValueError(f"{m} template is not a pulse (1-D, 3..4096 finite samples, "
+                                 f"center inside)")
+            if len(self.gates[m]) != 2 or not 0 <= self.gates[m][0] < self.gates[m][1]:
+                raise ValueError(f"{m} gate {self.gates[m]} is not a sample range")
+            c = self.cals[m]
+            vals = (c.t0_s, c.c_mm_s, c.t0_std_s, c.c_std_mm_s, c.residual_mm)
+            if c.modality != m or not np.isfinite(vals).all() or not c.c_mm_s > 0 or \
+                    min(vals[2:]) < 0 or abs(c.t0_s) > 1e-3:
+                raise ValueError(f"{m} calibration has values no calibration gives "
+                                 f"(t0, c, stds): run `dmdsm calibrate-range` again")
+
     @classmethod
     def from_json(cls, text: str) -> RangingSetup:
         """Parse to_json() text; raises ValueError with what is wrong."""
@@ -147,12 +170,16 @@ class RangingSetup:
                 raise ValueError("not a dmdsm ranging calibration")
             fs = float(obj["fs_hz"])
             mods = obj["modalities"]
-            return cls(fs, {m: Template(np.asarray(v["template"], float), fs,
-                                        float(v["center"])) for m, v in mods.items()},
-                       {m: tuple(v["gate"]) for m, v in mods.items()},
-                       {m: RangeCal(**v["calibration"]) for m, v in mods.items()})
-        except (KeyError, TypeError, json.JSONDecodeError) as e:
-            raise ValueError(f"not a readable ranging calibration ({e})") from None
+            setup = cls(fs, {m: Template(np.asarray(v["template"], float), fs,
+                                         float(v["center"])) for m, v in mods.items()},
+                        {m: tuple(int(g) for g in v["gate"]) for m, v in mods.items()},
+                        {m: RangeCal(**v["calibration"]) for m, v in mods.items()})
+            setup.check()
+            return setup
+        except (KeyError, TypeError, AttributeError, IndexError, ValueError) as e:
+            msg = str(e) if "ranging calibration" in str(e) else \
+                f"not a readable ranging calibration ({type(e).__name__}: {str(e)[:120]})"
+            raise ValueError(msg) from None
 
 
 T0_MAX_S = 10e-6  # prior: trigger-to-emission delays are below 10 us

@@ -115,7 +115,7 @@ fuzz: build
 	  build/fuzz_corpus 2>&1 | tail -n 4
 
 test: deps build gen-check lint test-c fuzz
-	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 --dist loadfile
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 bench: deps firmware
 	$(PY) bench/protocol.py

@@ -98,3 +98,12 @@ def test_the_sensor_answers_its_new_client_after_the_swapped_port_check(emulator
         r = dmdsm("info", "--sensor", emu.sensor, "--json")
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["identity"]["board"].startswith("SIL sensor board")
+
+
+def test_acquire_says_what_to_change_when_the_board_drops_shots(emulator, tmp_path):
+    emu = emulator(speed=2.0)
+    r = dmdsm("acquire", "--sensor", emu.sensor, "--shots", "20", "--average", "1",
+              "--samples", "4096", "-o", str(tmp_path / "s.h5"), "--json")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["device_dropped"] > 0 and "--average" in s["hint"]

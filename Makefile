@@ -115,7 +115,15 @@ fuzz: build
 	  build/fuzz_corpus 2>&1 | tail -n 4
 
 test: deps build gen-check lint test-c fuzz
-	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+	@# the full demo (mostly waiting on the real-time emulator) runs beside the other tests
+	@mkdir -p build; rc=0; drc=0; \
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider tests/demo \
+	  > build/test-demo.log 2>&1 & demo=$$!; \
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 --dist loadfile \
+	  --durations=15 --ignore=tests/demo || rc=$$?; \
+	wait $$demo || drc=$$?; \
+	echo "---- tests/demo (the full demo, run beside the others)"; cat build/test-demo.log; \
+	exit $$(( rc || drc ))
 
 bench: deps firmware
 	$(PY) bench/protocol.py

@@ -143,7 +143,7 @@ def test_no_reported_distance_is_far_outside_its_own_std(kind):
         r = mf(x + rng.normal(0, sigma, x.shape), min_snr_db=0.0)
         ok = np.isfinite(r.index)
         assert np.isfinite(r.index_std[ok]).all() and np.isnan(r.index_std[~ok]).all()
-        assert all("ambiguous" in s for s in r.reason[~ok])
+        assert all(s.startswith(("ambiguous", "spike")) for s in r.reason[~ok])
         reported += ok.sum()
         far += (np.abs(r.index[ok] - delays[ok]) > 5 * r.index_std[ok]).sum()
         if snr_db <= 10:
@@ -170,3 +170,23 @@ def test_the_ambiguity_floor_follows_the_next_carrier_cycle():
     assert narrow.rho1 > FILTERS["us"].rho1 > FILTERS["oa"].rho1 > 0.1
     assert narrow.ambiguity_snr_db > FILTERS["us"].ambiguity_snr_db > \
         FILTERS["oa"].ambiguity_snr_db > 14
+
+
+def test_an_interference_spike_is_not_an_echo():
+    """A one-sample spike correlates into a perfect template shape; it is flagged, while
+    echoes of any centre frequency in the band (0.5-1.6 MHz) against a 1.1 MHz template are
+    kept."""
+    tmpl = gaussian_pulse(FS, 1.1e6, 0.8)
+    mf = MatchedFilter(tmpl, N)
+    rng = np.random.default_rng(5)
+    x = rng.normal(0, 5, (40, N))
+    x[np.arange(40), rng.integers(100, 900, 40)] += rng.choice([-375, 375], 40)
+    r = mf(x)
+    assert np.isnan(r.index).all() and all(s.startswith("spike:") for s in r.reason)
+    for fc, bw in ((0.5e6, 0.9), (1.1e6, 0.8), (1.6e6, 0.9)):
+        sg = np.sqrt(2 * np.log(2)) / (np.pi * bw * fc)
+        delays = rng.uniform(100, 900, 40)
+        t = (np.arange(N)[None, :] - delays[:, None]) / FS
+        echo = 300 * np.exp(-0.5 * (t / sg) ** 2) * np.cos(2 * np.pi * fc * t)
+        r = mf(echo + rng.normal(0, 5, echo.shape))
+        assert not any(s.startswith("spike") for s in r.reason), fc

@@ -149,8 +149,10 @@ def _steps_in(path: Path) -> set[str]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Scan a step, or solve from a data file; save the TOML, print Table I with +- std."""
-    from .errors import CliError
+    from .errors import CliError, check_output
 
+    if args.step != "tip":
+        check_output(args.output)  # before the edge step measures anything
     if args.step is not None:
         _scan(args)
         if args.step == "tip":

@@ -23,6 +23,7 @@ from ..classify.materials import (
 from ..classify.model_file import check_provenance, read_model, save_model
 from ..classify.predict import predict_scan, vote
 from ..report.plots import confusion_figure
+from .errors import check_output
 
 PAPER = {"artificial materials": ">= 98.5 %", "apple": "79.0 %"}
 MODALITY = {"both": MODS, "oa": ("oa",), "us": ("us",)}
@@ -95,6 +96,7 @@ def cmd_classify(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
+    check_output(args.model)  # before the fit
     ds = assemble(_db_paths(args.db), args.window)
     model = fit(ds, args.classifier, modalities=MODALITY[args.modality], lone_pulses=True)
     save_model(model, ds, args.model)

@@ -15,6 +15,7 @@ from ..scan.catalogue import CatalogueError, find_scan, list_scans, rebuild, ver
 from ..scan.points import MODS, scan_points, validate_block
 from ..scan.reconstruct import ply_text
 from ..scan.scanfile import ScanData, ScanFileError, read_scan, scan_summary
+from .errors import check_output
 
 
 def load_truth(path: Path) -> tuple[float, float]:
@@ -108,6 +109,9 @@ def cmd_db(args: argparse.Namespace) -> int:
         return 0
     if not (args.csv or args.ply):
         raise CliError("db export needs --csv FILE and/or --ply FILE")
+    for out in (args.csv, args.ply):
+        if out:
+            check_output(out)
     pts = scan_points(scan)
     if args.csv:
         write_points_csv(args.csv, pts)
@@ -141,8 +145,11 @@ def write_ply(path: Path, pts: dict) -> None:
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     """Object-frame points of a scan; with --truth the block validation per modality."""
-    from .errors import CliError
+    from .errors import CliError, check_output
 
+    for out in (args.ply, args.plot, getattr(args, "csv", None)):
+        if out:
+            check_output(out)
     try:
         scan = read_scan(args.scan, waveforms=False)
     except ScanFileError as e:

@@ -14,6 +14,7 @@ import numpy as np
 from dmdsm.marlin_patch import load_machine
 
 from ..links.config import load_config, resolve_port
+from .errors import check_output
 
 ROLES = {  # USB VID:PID -> guessed role
     "0483:374b": "sensor (NUCLEO-H743ZI ST-LINK/V2-1 VCP)",
@@ -112,21 +113,6 @@ def cmd_info(args: argparse.Namespace) -> int:
          f"config: " + " ".join(f"{k}={v}" for k, v in info["config"].items()) + "\n"
          "status: " + " ".join(f"{k}={v}" for k, v in info["status"].items()))
     return 0
-
-
-def check_output(path: Path) -> None:
-    """Refuse an output file that cannot be written, before anything is measured."""
-    from .errors import CliError
-
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise CliError(f"{path} is a folder: name a file to write (e.g. {path / 'shots.h5'})")
-    if not folder.is_dir():
-        raise CliError(f"cannot write {path}: the folder {folder} does not exist; create it "
-                       f"or name another file")
-    if not os.access(folder, os.W_OK):
-        raise CliError(f"cannot write {path}: no permission to write in {folder}")
 
 
 def write_shots(path: Path, shots: object, identity: dict, port: str,

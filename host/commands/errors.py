@@ -2,6 +2,23 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 
 class CliError(Exception):
     """An error shown to the user as one line, without a traceback."""
+
+
+def check_output(path: Path) -> None:
+    """Refuse an output file that cannot be written (a missing or unwritable folder, a
+    folder as the file), before anything is measured or computed."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise CliError(f"{path} is a folder: name a file to write (e.g. {path / 'shots.h5'})")
+    if not folder.is_dir():
+        raise CliError(f"cannot write {path}: the folder {folder} does not exist; create it "
+                       f"or name another file")
+    if not os.access(folder, os.W_OK):
+        raise CliError(f"cannot write {path}: no permission to write in {folder}")

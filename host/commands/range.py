@@ -12,6 +12,7 @@ import numpy as np
 from ..ranging.calibrate import MODALITIES, RangingSetup, distance_std_mm, range_waveforms
 from ..ranging.matched_filter import speed_of_sound_mm_s
 from ..ranging.procedure import calibrate_range
+from .errors import check_output
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -54,6 +55,7 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
     from ..links.stage import StageClient
     from .errors import CliError
 
+    check_output(args.output)  # before the stage moves
     cfg = load_config(args.config)
     sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
     try:

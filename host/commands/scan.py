@@ -53,6 +53,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
     try:  # everything that needs no board is checked before a port is opened
+        if args.db.exists() and not args.db.is_dir():
+            raise CliError(f"{args.db} is a file, not a scan database folder: name a folder "
+                           f"(a new one is created)")
         checked_points(plan, cal)
         done = finished_scan(plan, cal_text, setup, args.db, args.scan_id)
     except ScanFileError as e:

@@ -21,6 +21,7 @@ import scipy.fft as sfft
 
 FINE = 16  # fine grid: points per sample for the refinement
 SLIP_Z = 4.0  # readings need the main lobe this many noise stds above the next carrier cycle
+SPIKE_FRACTION = 0.8  # a reading whose largest sample holds more of its energy is a spike
 TAPS = 10  # correlation samples each side used to predict it between samples
 NUGGET = 1e-7  # relative white floor in the predictor design (float32 rounding)
 
@@ -147,13 +148,23 @@ class MatchedFilter:
         # SNR from the refined peak: the integer-lag envelope misses up to ~4 dB of it
         snr_db = 20 * np.log10(np.maximum(np.abs(amp), 1e-30) / np.maximum(sigma_c, 1e-30))
         floor = max(min_snr_db, self.ambiguity_snr_db)
-        ok = snr_db >= floor
+        # an interference spike (one sample) correlates into a perfect template shape; in the
+        # waveform itself it is one sample holding nearly all the energy around the arrival,
+        # where an echo of any centre frequency in band spreads it over its cycles
+        h = int(np.ceil(1.5 * self.period)) + 2
+        pos = np.clip(np.round(index).astype(int)[:, None] + np.arange(-h, h + 1), 0, n - 1)
+        e = np.take_along_axis(x, pos, axis=1).astype(float) ** 2
+        peaky = e.max(axis=1) / np.maximum(e.sum(axis=1), 1e-30)
+        spike = peaky > SPIKE_FRACTION
+        ok = (snr_db >= floor) & ~spike
         reason = np.full(n_shots, "", dtype=object)
         for i in np.nonzero(~ok)[0]:
             reason[i] = (f"no echo: SNR {snr_db[i]:.1f} dB < {min_snr_db:g} dB"
                          if snr_db[i] < min_snr_db else
                          f"ambiguous: SNR {snr_db[i]:.1f} dB < {floor:.1f} dB, where the "
-                         f"next carrier cycle can win (cycle slip)")
+                         f"next carrier cycle can win (cycle slip)" if snr_db[i] < floor else
+                         f"spike: one sample holds {peaky[i]:.0%} of the reading's energy "
+                         f"(interference, not an echo)")
         snr = 10 ** (snr_db.astype(float) / 20)
         return Arrivals(np.where(ok, index.astype(float), np.nan),
                         amp.astype(float) / self.t.energy, snr_db.astype(float), reason,

@@ -38,6 +38,9 @@ class CatalogueError(ValueError):
 def connect(db_dir: Path, create: bool = False) -> sqlite3.Connection:
     """Open DB/catalogue.sqlite (creating the directory and table if asked)."""
     db_dir = Path(db_dir)
+    if db_dir.exists() and not db_dir.is_dir():
+        raise CatalogueError(f"{db_dir} is a file, not a scan database folder: name a folder "
+                             f"(a new one is created)")
     if not db_dir.is_dir():
         if not create:
             raise CatalogueError(f"{db_dir} is not a scan database (no such directory); "

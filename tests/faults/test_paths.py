@@ -77,3 +77,32 @@ def test_a_catalogue_row_pointing_outside_the_database_is_not_opened(tmp_path):
     assert r.returncode == 0, r.stderr
     (row,) = list_scans(db)
     assert row["status"] == "complete" and verify(row) == "ok"
+
+
+@pytest.mark.parametrize("command", [
+    ["calibrate-range", "-x", "235", "-y", "266", "-z", "20", "--start-distance", "7.2",
+     "--sensor", "/dev/null-s", "--stage", "/dev/null-p", "-o", "{missing}/r.json"],
+    ["calibrate", "--from-data", "{rig}", "-o", "{missing}/c.toml"],
+    ["reconstruct", "{scan}", "--plot", "{missing}/p.png"],
+    ["reconstruct", "{scan}", "--ply", "{missing}/p.ply"],
+    ["db", "export", "{scan_id}", "--db", "{db}", "--csv", "{missing}/p.csv"],
+    ["classify", "train", "--db", "{db}", "-o", "{missing}/m.model"],
+    ["scan", "--plan", "{plan}", "--calibration", "{cal}", "--ranging", "{ranging}",
+     "-o", "{plain}"],
+])
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, inputs,
+                                                                      command):
+    cal, ranging, plan = inputs
+    db = tmp_path / "db"
+    (scan,) = make_database(db, points=8, seed=2, objects=["soda_can"])
+    rig = tmp_path / "rig.csv"
+    rig.write_text("step,frame,line,theta_deg,sx_mm,sy_mm,sz_mm,d_mm,amplitude,modality\n")
+    plain = tmp_path / "plain.txt"
+    plain.write_text("a file, not a folder\n")
+    names = {"missing": tmp_path / "no" / "such", "rig": rig, "scan": scan, "db": db,
+             "scan_id": scan.stem, "plan": plan, "cal": cal, "ranging": ranging,
+             "plain": plain}
+    r = dmdsm(*[a.format(**names) for a in command])
+    assert r.returncode == 2, r.stderr
+    assert ("does not exist" in r.stderr or "is a file" in r.stderr), r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -186,7 +186,9 @@ class GcodeMixin:
         self.next_report = self.now + self.auto_report_s
 
     def _M400(self, words: dict, n: int | None) -> bool:
-        self._block("sync", self.planner.busy_until(self.now), n)
+        # planner.synchronize(): until the planner is empty, however that happens (the moves
+        # end, or an M410 drops them), not until the time the moves would have ended
+        self._block("sync", self.now, n)
         return False
 
     def _M410(self, words: dict, n: int | None) -> None:

@@ -199,14 +199,16 @@ def cmd_stage(args: argparse.Namespace) -> int:
     from ..links.stage import StageClient
 
     config = load_config(args.config)
-    st = StageClient(resolve_port("stage", args.stage, config))
+    # `stop` must act while another program's move runs: M410 goes out before the
+    # handshake, which waits behind a full planner
+    st = StageClient(resolve_port("stage", args.stage, config),
+                     stop_first=args.action == "stop")
     try:
         if args.action == "home":
             pos = st.home()
         elif args.action == "where":
             pos = st.where()
         elif args.action == "stop":
-            st.stop()
             pos = st.where()
         else:
             pos = _move(st, args, config)
@@ -219,6 +221,9 @@ def cmd_stage(args: argparse.Namespace) -> int:
     return 0
 
 
+MAX_TURNS = 100  # the turntable axis A: |A| beyond this many turns is a typing error
+
+
 def _move(st: object, args: argparse.Namespace, config: dict) -> dict:
     """Check the move against the envelope and the keep-out, then move and wait."""
     from ..links.safety import TABLE_I, KeepOut, check_move
@@ -229,6 +234,11 @@ def _move(st: object, args: argparse.Namespace, config: dict) -> dict:
         v = getattr(args, axis.lower())
         if v is not None:
             target[axis] = here[axis] + v if args.relative else v
+    if abs(target["A"]) > MAX_TURNS * 360.0:  # A has no endstop and no soft limit
+        from .errors import CliError
+
+        raise CliError(f"A {target['A']:g} deg is more than {MAX_TURNS} turns from the "
+                       f"turntable's zero: move it less (or `G92 A0` to re-zero it)")
     cal = config.get("calibration", {})
     keep = KeepOut(np.asarray(cal.get("X_R", TABLE_I["X_R"]), float),
                    np.asarray(cal.get("n", TABLE_I["n"]), float),

@@ -51,7 +51,7 @@ class StageClient:
     """A Marlin board on a serial port (or pty / URL)."""
 
     def __init__(self, port: str, baudrate: int = 250000, timeout_s: float = 5.0,
-                 window: int = 4) -> None:
+                 window: int = 4, stop_first: bool = False) -> None:
         self.port_name = port
         self.ser = open_port(port, baudrate)
         self.timeout_s = timeout_s
@@ -66,6 +66,9 @@ class StageClient:
         self.stats = StageStats()
         self.last_position: dict[str, float] | None = None  # from M114 or M154 reports
         self.halted = False
+        if stop_first:  # M410 acts on receipt (emergency parser): before anything can queue
+            self.plain_oks_expected += 1
+            self._write("M410\n")
         self._reset_line_numbers()
 
     def close(self) -> None:

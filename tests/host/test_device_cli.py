@@ -1,11 +1,13 @@
 """`dmdsm info | acquire | stage | ports` against the emulator, as a user types them."""
 
 import json
+import signal
 import subprocess
 import sys
 
 import h5py
 import numpy as np
+import pytest
 
 from dmdsm.host.links.safety import TABLE_I, KeepOut, UnsafeMove, check_move
 from dmdsm.marlin_patch import load_machine
@@ -107,3 +109,34 @@ def test_acquire_says_what_to_change_when_the_board_drops_shots(emulator, tmp_pa
     assert r.returncode == 0, r.stderr
     s = json.loads(r.stdout)
     assert s["device_dropped"] > 0 and "--average" in s["hint"]
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stopped_move_stops_at_once_and_stage_stop_answers(emulator, sig, code):
+    """Issue 19, item 2: Ctrl-C or SIGTERM (`timeout 4 dmdsm stage move -a 3600`) during a
+    40 s turn stops the axis and the command exits at once; `stage stop` then answers at
+    once and A stays where it stopped; `move -a 1e12` is refused before anything moves."""
+    import time
+
+    emu = emulator(speed=1.0)
+    r = dmdsm("stage", "move", "-a", "1e12", "--stage", emu.stage)
+    assert r.returncode == 2 and "turns" in r.stderr and "Traceback" not in r.stderr
+    mover = subprocess.Popen([sys.executable, "-m", "dmdsm.host", "stage", "move", "-a",
+                              "3600", "--stage", emu.stage], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(3.0)  # A turns at 90 deg/s: the move would take 40 s
+    t0 = time.monotonic()
+    mover.send_signal(sig)
+    _, err = mover.communicate(timeout=60)
+    assert mover.returncode == code, err
+    assert time.monotonic() - t0 < 10, time.monotonic() - t0
+    t0 = time.monotonic()
+    r = dmdsm("stage", "stop", "--stage", emu.stage, "--json")
+    assert r.returncode == 0, r.stderr
+    assert time.monotonic() - t0 < 15
+    stopped_at = json.loads(r.stdout)["A"]
+    assert 0 < stopped_at < 1800, stopped_at
+    time.sleep(1.0)
+    r = dmdsm("stage", "where", "--stage", emu.stage, "--json")
+    assert abs(json.loads(r.stdout)["A"] - stopped_at) < 5  # it stays stopped

@@ -39,7 +39,7 @@ def result_dict(r: CalibrationResult) -> dict:
             "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
             "rms_residual_mm": r.rms_residual_mm,
             "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm},
-            "lateral_scale": {"tip": r.lateral_scale[0], "edge": r.lateral_scale[1]},
+            "lateral_scale": r.lateral_scale,
             "residuals": {"tip_mm": r.residuals["tip"].tolist(),
                           "edge_mm": r.residuals["edge"].tolist(),
                           "theta_deg": r.residuals["theta_deg"].tolist()}}
@@ -55,8 +55,7 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
              f"X_R_std = {vec(r.std['X_R'])}", f"rms_residual_mm = {r.rms_residual_mm:.6g}",
              f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
              f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
-             f"tip_lateral_scale = {r.lateral_scale[0]:.6g}",
-             f"edge_lateral_scale = {r.lateral_scale[1]:.6g}",
+             f"lateral_scale = {r.lateral_scale:.6g}",
              f"source = {json.dumps(source)}",
              f"source_sha256 = \"{file_hash(Path(source))}\"",
              f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",

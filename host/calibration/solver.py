@@ -191,15 +191,15 @@ class CalibrationResult:
     # per center point at the solution: tip (k, 3) mm from the fitted tip; edge (m,) mm
     # from the fitted filament line; theta_deg (F,) fitted minus read table angle
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
-    # factors on the tip and edge center points' lateral covariances (Sigma_P / n), from the
-    # residuals: a raster's centroid scatters less (or more) than its points' spread / n
-    lateral_scale: tuple[float, float] = (1.0, 1.0)
+    # factor on the center points' lateral covariances (Sigma_P / n), from the residuals: a
+    # raster's centroid scatters less (or more) than its points' spread / n
+    lateral_scale: float = 1.0
 
 
 def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bool = True
           ) -> CalibrationResult:
     """SVD estimates (eqs. 2-7), then the joint MLE (eq. 8) by Levenberg-Marquardt; the
-    depth scatters and lateral scales are estimated from the residuals unless
+    depth scatters and the lateral scale are estimated from the residuals unless
     scatter_from_residuals is False (the covariances as given, as for the bound)."""
     v0, tip0 = estimate_v(data.tip_S, data.tip_d)
     frames = np.unique(data.edge_frame)
@@ -236,7 +236,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
         return v, n, xr, q, pt, tip, th
 
     extra = [0.0, 0.0]  # variances (mm^2) added to each tip and edge depth: see below
-    scale = [1.0, 1.0]  # factors on the tip and edge center points' lateral covariances
+    scale = [1.0]  # factor on the center points' lateral covariances (tips and edges)
 
     def residuals(p: np.ndarray, whiten: bool = True, depth: bool = False) -> np.ndarray:
         """Whitened residuals; depth=True: the tips' and the edges' unwhitened residuals
@@ -266,7 +266,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
             B = tangent_basis(li)
             perp = (rel - np.outer(rel @ li, li)) @ B  # across the line
             cS = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B)
-            cov = scale[1] * cS + edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+            cov = scale[0] * cS + edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
             if depth:
                 e = unit(B.T @ v)
                 r.append(perp @ e)
@@ -308,8 +308,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
         # would let it collapse towards 0 in one seed of a hundred
         k, m = len(data.tip_d), len(data.edge_d)
         dof = (2 * k - 4) + (m - 2 * F)
-        s = min(max(sum(res[4]) / dof, 0.01), 100.0) if dof > 0 else 1.0
-        new_scale = [s, s]
+        new_scale = [min(max(sum(res[4]) / dof, 0.01), 100.0) if dof > 0 else 1.0]
         if not scatter_from_residuals:
             break
         if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)) and \
@@ -337,7 +336,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
            "theta_deg": unpack(sol.x)[6] - np.asarray(thetas)}
     return CalibrationResult(v, n, xr, {"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]},
                              cov, rms_mm, svd, float(np.sqrt(extra[1])),
-                             float(np.sqrt(extra[0])), res, (float(scale[0]), float(scale[1])))
+                             float(np.sqrt(extra[0])), res, float(scale[0]))
 
 
 def cramer_rao_bound(design: CalibrationData) -> np.ndarray:

@@ -82,7 +82,11 @@ def finished_scan(plan: ScanPlan, calibration_toml: str, setup: RangingSetup, db
                   scan_id: str | None = None) -> ScanRun | None:
     """The scan of this plan if it is already complete in `db` (nothing left to do), else
     None; raises ScanFileError if its file is not a readable scan. Needs no board."""
-    scan_id, path = scan_path(plan, calibration_toml, setup, db, scan_id)
+    return _complete(*scan_path(plan, calibration_toml, setup, db, scan_id))
+
+
+def _complete(scan_id: str, path: Path) -> ScanRun | None:
+    """The ScanRun of a complete scan file at path, None if absent or unfinished."""
     if not path.exists():
         return None
     done = read_scan(path, waveforms=False)
@@ -105,11 +109,12 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
     points = checked_points(plan, calibration)  # every move, before any motion
     n, X_R = (np.asarray(calibration[k], float) for k in ("n", "X_R"))
     machine, keep = load_machine(), keep_outs(plan, n, X_R)
-    done = finished_scan(plan, calibration_toml, setup, db, scan_id)
+    run_hash = scan_identity(plan, calibration_toml, setup)
+    scan_id, path = scan_path(plan, calibration_toml, setup, db,
+                              scan_id or f"{plan.object_id}-{run_hash[:8]}")
+    done = _complete(scan_id, path)
     if done is not None:
         return done
-    run_hash = scan_identity(plan, calibration_toml, setup)
-    scan_id, path = scan_path(plan, calibration_toml, setup, db, scan_id)
     connect(Path(db), create=True).close()
     if home:
         stage.home()

@@ -2,7 +2,6 @@
 values the sensor board cannot take, non-finite numbers and a missing level are one-line
 errors in bounded time, never a long silent expansion."""
 
-import resource
 import subprocess
 import sys
 import time
@@ -53,7 +52,6 @@ def test_the_scan_command_refuses_a_huge_plan_quickly_and_in_little_memory(tmp_p
     assert r.returncode == 2 and "points (at most" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "db").exists()  # a refused scan leaves no database behind
-    assert resource.getrlimit(resource.RLIMIT_AS)  # the limit applied to the child only
 
 
 @settings(max_examples=80, deadline=2000)
@@ -64,7 +62,7 @@ def test_any_plan_loads_within_bounds_or_is_refused(tmp_path_factory, half, step
                                                    samples):
     path = tmp_path_factory.mktemp("p") / "plan.toml"
     levels = "[" + ", ".join(["20.0"] * n_levels) + "]"
-    path.write_text(plan_text(half_width_mm=repr(half).replace("nan", "nan"),
+    path.write_text(plan_text(half_width_mm=repr(half),
                               step_mm=repr(step), levels_mm=levels, samples=str(samples)))
     try:
         plan = load_plan(path)

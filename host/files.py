@@ -6,6 +6,13 @@ import hashlib
 from pathlib import Path
 
 
+def one_line(text: str, limit: int = 200) -> str:
+    """Text from a hostile file made fit for a one-line error: control characters
+    escaped, cut to `limit` characters."""
+    text = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in str(text))
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def file_hash(path: Path) -> str:
     """sha256 of a file's bytes (hex)."""
     h = hashlib.sha256()

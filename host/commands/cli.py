@@ -11,6 +11,7 @@ from dmdsm.protocol import tool as protocol_tool
 from .. import __version__
 from ..calibration.solver import CalibrationError
 from ..classify.materials import ClassifyError
+from ..files import one_line
 from ..links.config import ConfigError
 from ..links.safety import UnsafeMove
 from ..links.transport import LinkError
@@ -79,7 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     except (CliError, protocol_tool.ToolError, flash.FlashError, LinkError, ConfigError,
             UnsafeMove, CalibrationError, CatalogueError, PlanError, ScanFileError,
             ClassifyError) as e:
-        print(f"dmdsm: error: {e}", file=sys.stderr)
+        print(f"dmdsm: error: {one_line(str(e), 400)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
         if isinstance(e, Terminated) or isinstance(e.__cause__, Terminated):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import scipy.fft as sfft
 
+from ..files import one_line
 from .matched_filter import MatchedFilter, Template, distance_mm, gaussian_pulse, rms_bandwidth
 
 MODALITIES = ("oa", "us")
@@ -177,8 +178,8 @@ class RangingSetup:
             setup.check()
             return setup
         except (KeyError, TypeError, AttributeError, IndexError, ValueError) as e:
-            msg = str(e) if "ranging calibration" in str(e) else \
-                f"not a readable ranging calibration ({type(e).__name__}: {str(e)[:120]})"
+            msg = one_line(str(e), 300) if "ranging calibration" in str(e) else \
+                f"not a readable ranging calibration ({type(e).__name__}: {one_line(str(e), 120)})"
             raise ValueError(msg) from None
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import one_line
+
 FORMAT_VERSION = "1"
 PHASES = ("move", "settle", "acquire", "transfer", "ranging")
 #: per-point datasets: name -> (dtype, shape after the point axis)
@@ -266,7 +268,7 @@ def read_scan(path: Path, waveforms: bool = True) -> ScanData:
             return _read(f, path, waveforms)
     except (KeyError, ValueError, TypeError, OSError, RuntimeError, IndexError) as e:
         raise ScanFileError(f"{path} is damaged or not a complete dmdsm scan file "
-                            f"({type(e).__name__}: {str(e)[:200]})") from None
+                            f"({type(e).__name__}: {one_line(str(e))})") from None
 
 
 MAX_POINTS_READ = 5_000_000  # a file declaring more is refused, not read into memory

@@ -63,7 +63,7 @@ def run(speed: float, levels: str, step: float, out: Path) -> dict:
         with contextlib.redirect_stdout(buf):
             rc = dmdsm(["scan", "--sensor", S, "--stage", T, "--calibration",
                         str(out / "cal.toml"), "--ranging", str(out / "ranging.json"),
-                        "--plan", str(out / "plan.toml"), "-o", str(out / "db"), "--json"])
+                        "--plan", str(out / "plan.toml"), "--db", str(out / "db"), "--json"])
         sim_dt = sim.t - sim_t0
     finally:
         server.stop()

@@ -35,6 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e = psub.add_parser("encode", help="turn JSON lines (as decode --json prints) into frames")
     e.add_argument("file", nargs="?", default="-", help="JSON-lines file, or - for stdin")
     e.add_argument("-o", "--output", default="-", help="output file (default stdout)")
+    e.add_argument("--json", action="store_true",
+                   help="with -o FILE: print what was written as one JSON line")
     e.set_defaults(func=cmd_encode)
 
 
@@ -124,6 +126,8 @@ def cmd_decode(args: argparse.Namespace, out: TextIO | None = None,
 def cmd_encode(args: argparse.Namespace) -> int:
     """Encode JSON lines into frame bytes."""
     spec = load_spec()
+    if args.json and args.output == "-":
+        raise ToolError("--json needs -o FILE: without it the frames themselves go to stdout")
     if args.file == "-":
         lines = sys.stdin
     else:
@@ -155,4 +159,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
                 f.write(data)
         except OSError as e:
             raise ToolError(f"cannot write {args.output}: {e.strerror}") from None
+        if args.json:
+            print(json.dumps({"output": args.output, "frames": len(frames), "bytes": len(data)}))
     return 0

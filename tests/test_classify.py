@@ -126,7 +126,7 @@ def test_model_file_predicts_and_refuses_other_sample_rates(db, model, tmp_path,
     (tmp_path / "junk.model").write_bytes(b"not a model")
     rc, out, err = run(capsys, "classify", "predict", "--model",
                        str(tmp_path / "junk.model"), "--scan", str(scan))
-    assert rc == 2 and "not a readable dmdsm classifier model" in err
+    assert rc == 2 and "is not a dmdsm classifier model" in err
 
 
 def test_live_prediction_refuses_a_ranging_setup_at_another_rate(model, tmp_path, capsys):

@@ -168,6 +168,10 @@ class FusedModel:
     fit_s: float = 0.0
     modalities: tuple[str, ...] = MODS
     modality_model: object | None = None    # tells an OA window from a US one (lone pulses)
+    seed: int = 0
+    training: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    # BOSS only: the windows and labels each modality's model was fit on (a model file keeps
+    # them and refits; BOSS's fitted dictionaries are not arrays)
 
     def predict_proba(self, ds: Dataset) -> np.ndarray:
         """(n, n_classes) probabilities."""
@@ -207,7 +211,7 @@ def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MOD
     for j, c in enumerate(classes):
         if len(modalities) == len(MODS):
             pat[:, j] += np.bincount(_pattern(ds)[ds.y == c], minlength=4)
-    models, mod_prior = {}, {}
+    models, mod_prior, training = {}, {}, {}
     rng = np.random.default_rng(seed)
     for m in modalities:
         idx = np.nonzero(ds.has[m])[0]
@@ -217,6 +221,8 @@ def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MOD
             idx = np.concatenate([rng.permutation(idx[ds.y[idx] == c])[:BOSS_PER_CLASS]
                                   for c in np.unique(ds.y[idx])])
         models[m] = make_classifier(name, seed).fit(ds.X[m][idx][:, None, :], ds.y[idx])
+        if name == "boss":
+            training[m] = (ds.X[m][idx], ds.y[idx])
         mc = np.array([(ds.y[idx] == c).sum() for c in classes], float) + 1.0
         mod_prior[m] = mc / mc.sum()
     if not models:
@@ -227,7 +233,7 @@ def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MOD
         which = fit_modality(ds, seed)
     return FusedModel(name, classes, models, counts / counts.sum(), mod_prior,
                       pat / pat.sum(axis=0, keepdims=True), time.perf_counter() - t0,
-                      tuple(modalities), which)
+                      tuple(modalities), which, seed, training)
 
 
 def _check_modalities(modalities: tuple[str, ...]) -> None:

@@ -30,31 +30,49 @@ MODALITY = {"both": MODS, "oa": ("oa",), "us": ("us",)}
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    """Register `classify`."""
+    """Register `classify train|evaluate|predict`."""
     p = sub.add_parser("classify", help="train, evaluate and use material classifiers")
-    p.add_argument("action", choices=["train", "evaluate", "predict"])
-    p.add_argument("--db", type=Path, help="scan database directory")
-    p.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket")
-    p.add_argument("--classifiers", nargs="+", choices=["boss", "minirocket"],
-                   default=["boss", "minirocket"], help="evaluate: which ones")
-    p.add_argument("--modality", choices=list(MODALITY), default="both",
-                   help="train/evaluate: OA and US fused (default) or one alone")
-    p.add_argument("--window", type=int, default=WINDOW,
-                   help=f"samples per window (default {WINDOW}); a model only takes its own")
-    p.add_argument("--trials", type=int, default=50, help="evaluate: random 3:1 splits")
-    p.add_argument("--boss-trials", type=int, default=10,
-                   help="evaluate: random splits for BOSS (about 20 s per fit)")
-    p.add_argument("--no-loo", action="store_true",
-                   help="evaluate: skip the leave-one-object-out protocol")
-    p.add_argument("--out", type=Path, default=Path("classify"),
-                   help="evaluate: folder for confusion matrices (CSV, PNG)")
-    p.add_argument("-o", "--model", type=Path, default=Path("material.model"))
-    p.add_argument("--scan", type=Path, help="predict: every point of this scan file")
-    p.add_argument("--sensor", help="predict: acquire where the sensor is now")
-    p.add_argument("--ranging", type=Path, default=Path("ranging.json"))
-    p.add_argument("--shots", type=int, default=8, help="predict --sensor: waveforms")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_classify)
+    psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--window", type=int, default=WINDOW,
+                        help=f"samples per window (default {WINDOW}); a model only takes its own")
+    common.add_argument("--json", action="store_true", help="machine-readable output")
+
+    t = psub.add_parser("train", parents=[common], help="fit a classifier to a database")
+    t.add_argument("--db", type=Path, required=True, help="scan database folder")
+    t.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket")
+    t.add_argument("--modality", choices=list(MODALITY), default="both",
+                   help="OA and US fused (default) or one alone")
+    t.add_argument("-o", "--output", type=Path, required=True,
+                   help="model file to write (numpy arrays + JSON provenance, no pickle)")
+
+    e = psub.add_parser("evaluate", parents=[common],
+                        help="the paper's accuracy protocols on a database")
+    e.add_argument("--db", type=Path, required=True, help="scan database folder")
+    e.add_argument("--classifiers", nargs="+", choices=["boss", "minirocket"],
+                   default=["boss", "minirocket"], help="which ones (default both)")
+    e.add_argument("--modality", choices=list(MODALITY), default="both",
+                   help="OA and US fused (default) or one alone")
+    e.add_argument("--trials", type=int, default=50, help="random 3:1 splits")
+    e.add_argument("--boss-trials", type=int, default=10,
+                   help="random splits for BOSS (about 20 s per fit)")
+    e.add_argument("--no-loo", action="store_true",
+                   help="skip the leave-one-object-out protocol")
+    e.add_argument("--out", type=Path, default=Path("classify"),
+                   help="folder for confusion matrices (CSV, PNG; default ./classify)")
+
+    r = psub.add_parser("predict", parents=[common],
+                        help="the material of a scan, or of what the sensor sees now")
+    r.add_argument("--model", type=Path, required=True,
+                   help="model file from `dmdsm classify train`")
+    src = r.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scan", type=Path, help="every point of this scan file")
+    src.add_argument("--sensor", help="acquire where the sensor is now (port)")
+    r.add_argument("--ranging", type=Path, default=Path("ranging.json"),
+                   help="--sensor: ranging calibration (default ./ranging.json)")
+    r.add_argument("--shots", type=int, default=8, help="--sensor: waveforms to classify")
+    for q in (t, e, r):
+        q.set_defaults(func=cmd_classify)
 
 
 def _db_paths(db: Path | None) -> list[Path]:
@@ -96,16 +114,16 @@ def cmd_classify(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    check_output(args.model)  # before the fit
+    check_output(args.output)  # before the fit
     ds = assemble(_db_paths(args.db), args.window)
     model = fit(ds, args.classifier, modalities=MODALITY[args.modality], lone_pulses=True)
-    save_model(model, ds, args.model)
-    out = {"model": str(args.model), "classifier": args.classifier, "points": len(ds),
+    save_model(model, ds, args.output)
+    out = {"model": str(args.output), "classifier": args.classifier, "points": len(ds),
            "modality": args.modality, "classes": model.classes.tolist(),
            "fit_s": round(model.fit_s, 2)}
     print(json.dumps(out) if args.json else f"trained {args.classifier} ({args.modality}) on "
           f"{len(ds)} points ({', '.join(model.classes)}) in {model.fit_s:.1f} s; saved "
-          f"{args.model}")
+          f"{args.output}")
     return 0
 
 
@@ -152,7 +170,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _predict(args: argparse.Namespace) -> int:
     if args.scan:
         out = predict_scan(args.model, args.scan, args.window)
-    elif args.sensor:
+    else:
         from ..classify.live import acquire_windows
 
         model, prov = read_model(args.model)
@@ -162,8 +180,6 @@ def _predict(args: argparse.Namespace) -> int:
                           predict_lone(model, lone) if len(lone) else
                           np.zeros((0, len(model.classes)))])
         out = vote(model.classes, prob, args.sensor)
-    else:
-        raise ClassifyError("predict needs --scan FILE or --sensor PORT")
     print(json.dumps(out) if args.json else f"{out['source']}: {out['material']} "
           f"(confidence {out['confidence']:.0%} over {out['points']} waveforms)")
     return 0

@@ -41,13 +41,15 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")
+    d.add_argument("--json", action="store_true",
+                   help="progress to stderr, the summary as one JSON line on stdout")
     d.set_defaults(func=_demo)
     return ap
 
 
 def _demo(args: argparse.Namespace) -> int:
     from ..report.demo import run_demo
-    return run_demo(args.out, main, quick=args.quick)
+    return run_demo(args.out, main, quick=args.quick, as_json=args.json)
 
 
 class Terminated(KeyboardInterrupt):

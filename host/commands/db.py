@@ -38,14 +38,21 @@ def load_truth(path: Path) -> tuple[float, float]:
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Register `db` and `reconstruct`."""
     p = sub.add_parser("db", help="the scan database: list, show, export, rebuild")
-    p.add_argument("action", choices=["list", "show", "export", "rebuild"])
-    p.add_argument("scan_id", nargs="?", help="scan to show or export")
-    p.add_argument("--db", type=Path, default=Path("scans"), help="database directory")
-    p.add_argument("--object", help="list: only this object id")
-    p.add_argument("--material", help="list: only this material")
-    p.add_argument("--csv", type=Path, help="export: points as CSV")
-    p.add_argument("--ply", type=Path, help="export: object-frame point cloud as PLY")
-    p.add_argument("--json", action="store_true")
+    psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--db", type=Path, required=True, help="scan database folder")
+    common.add_argument("--json", action="store_true", help="machine-readable output")
+    q = psub.add_parser("list", parents=[common], help="the catalogue, with each file checked")
+    q.add_argument("--object", help="only this object id")
+    q.add_argument("--material", help="only this material")
+    q = psub.add_parser("show", parents=[common], help="one scan's metadata and plan")
+    q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
+    q = psub.add_parser("export", parents=[common], help="one scan's points as CSV and/or PLY")
+    q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
+    q.add_argument("--csv", type=Path, help="points as CSV")
+    q.add_argument("--ply", type=Path, help="object-frame point cloud as PLY")
+    psub.add_parser("rebuild", parents=[common],
+                    help="index the scan files again (a damaged catalogue is set aside)")
     p.set_defaults(func=cmd_db)
     p = sub.add_parser("reconstruct", help="object-frame points, contours, block validation")
     p.add_argument("scan", type=Path, help="scan file (DB/scans/ID.h5)")
@@ -59,8 +66,6 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 def _scan_file(args: argparse.Namespace) -> ScanData:
     from .errors import CliError
 
-    if not args.scan_id:
-        raise CliError(f"db {args.action} needs a SCAN_ID (`dmdsm db list --db {args.db}`)")
     try:
         row = find_scan(args.db, args.scan_id)
         if row["status"].startswith("refused"):
@@ -93,8 +98,11 @@ def cmd_db(args: argparse.Namespace) -> int:
             n, skipped = rebuild(args.db)
             for line in skipped:
                 print(f"dmdsm: skipped {line}", file=sys.stderr)
-            print(f"indexed {n} scan files in {args.db}" +
-                  (f"; {len(skipped)} left out (above)" if skipped else ""))
+            if args.json:
+                print(json.dumps({"indexed": n, "skipped": skipped}))
+            else:
+                print(f"indexed {n} scan files in {args.db}" +
+                      (f"; {len(skipped)} left out (above)" if skipped else ""))
             return 0
     except CatalogueError as e:
         raise CliError(str(e)) from None
@@ -117,7 +125,10 @@ def cmd_db(args: argparse.Namespace) -> int:
         write_points_csv(args.csv, pts)
     if args.ply:
         write_ply(args.ply, pts)
-    print(f"exported {sum(len(pts[m]['P']) for m in MODS)} points of {args.scan_id}")
+    n = sum(len(pts[m]["P"]) for m in MODS)
+    print(json.dumps({"scan_id": args.scan_id, "points": n, "csv": str(args.csv or ""),
+                      "ply": str(args.ply or "")}) if args.json else
+          f"exported {n} points of {args.scan_id}")
     return 0
 
 

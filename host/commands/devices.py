@@ -48,20 +48,28 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--shots", type=int, required=True, help="waveforms to record")
     p.add_argument("--average", type=int, default=None, help="shots averaged on board")
     p.add_argument("--samples", type=int, default=None, help="samples per shot")
-    p.add_argument("-o", "--output", type=Path, required=True, help="FILE.h5")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="FILE.h5 to write (an existing file is kept unless --force)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --output")
     p.set_defaults(func=cmd_acquire)
 
-    p = sub.add_parser("stage", parents=[common], help="home, move, where, stop")
-    p.add_argument("action", choices=["home", "move", "where", "stop"])
-    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    p = sub.add_parser("stage", help="home, move, where, stop")
+    psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    staged = argparse.ArgumentParser(add_help=False, parents=[common])
+    staged.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    for action, text in (("home", "home X, Y, Z (G28)"), ("where", "the position (M114)"),
+                         ("stop", "stop any move at once (M410), then say where")):
+        psub.add_parser(action, parents=[staged], help=text)
+    q = psub.add_parser("move", parents=[staged],
+                        help="move, checked against the envelope and keep-out first")
     for axis, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("a", "deg")):
-        p.add_argument(f"-{axis}", f"--{axis}", type=float,
+        q.add_argument(f"-{axis}", f"--{axis}", type=float,
                        help=f"target {axis.upper()} ({unit})")
-    p.add_argument("--feed", type=float, default=3000, help="feedrate (mm/min)")
-    p.add_argument("--relative", action="store_true", help="move by, not to")
-    p.add_argument("--object-radius", type=float, default=0.0,
+    q.add_argument("--feed", type=float, default=3000, help="feedrate (mm/min)")
+    q.add_argument("--relative", action="store_true", help="move by, not to")
+    q.add_argument("--object-radius", type=float, default=0.0,
                    help="keep-out cylinder radius around the table axis (mm)")
-    p.add_argument("--object-height", type=float, default=0.0, help="keep-out height (mm)")
+    q.add_argument("--object-height", type=float, default=0.0, help="keep-out height (mm)")
     p.set_defaults(func=cmd_stage)
 
 
@@ -155,7 +163,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     if args.shots <= 0:
         from .errors import CliError
         raise CliError("--shots must be positive")
-    check_output(args.output)  # before anything is measured
+    check_output(args.output, keep_existing=not args.force)  # before anything is measured
     sc = SensorClient(resolve_port("sensor", args.sensor, load_config(args.config)))
     try:
         cfg = {k: v for k, v in (("n_average", args.average), ("n_samples", args.samples))

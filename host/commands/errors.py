@@ -10,10 +10,13 @@ class CliError(Exception):
     """An error shown to the user as one line, without a traceback."""
 
 
-def check_output(path: Path) -> None:
+def check_output(path: Path, keep_existing: bool = False) -> None:
     """Refuse an output file that cannot be written (a missing or unwritable folder, a
-    folder as the file), before anything is measured or computed."""
+    folder as the file; an existing file if keep_existing), before anything is measured."""
     path = Path(path)
+    if keep_existing and path.exists() and not path.is_dir():
+        raise CliError(f"{path} exists and holds earlier data: name another file, or pass "
+                       f"--force to overwrite it")
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise CliError(f"{path} is a folder: name a file to write (e.g. {path / 'shots.h5'})")

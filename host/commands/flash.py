@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import subprocess
 from pathlib import Path
@@ -29,10 +30,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s = psub.add_parser("stm32", help="the sensor board (NUCLEO-H743ZI / -ZI2)")
     s.add_argument("--tool", choices=sorted(TOOLS), default="openocd",
                    help="flashing tool (default openocd, board/st_nucleo_h743zi.cfg)")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=cmd_flash_stm32)
     m = psub.add_parser("marlin", help="the stage board (Chiron, ATmega2560) with avrdude")
     m.add_argument("hex", type=Path, help="firmware .hex built from the patched Marlin")
     m.add_argument("--port", required=True, help="serial port of the board, e.g. /dev/ttyUSB0")
+    m.add_argument("--json", action="store_true", help="machine-readable output")
     m.set_defaults(func=cmd_flash_marlin)
 
 
@@ -53,7 +56,9 @@ def cmd_flash_stm32(args: argparse.Namespace) -> int:
                              f"(CN1), check the cable and udev permissions, then retry")
         last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
         raise FlashError(f"{program} failed: {last[0]}")
-    print(f"flashed firmware/stm32/build/nucleo_h743zi/firmware.elf with {program}")
+    elf = "firmware/stm32/build/nucleo_h743zi/firmware.elf"
+    print(json.dumps({"flashed": elf, "board": "nucleo_h743zi", "tool": program})
+          if args.json else f"flashed {elf} with {program}")
     return 0
 
 
@@ -89,5 +94,7 @@ def cmd_flash_marlin(args: argparse.Namespace) -> int:
                 raise FlashError(hint.format(port=args.port))
         last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
         raise FlashError(f"avrdude failed: {last[0]}")
-    print(f"flashed {args.hex} to the ATmega2560 on {args.port}")
+    print(json.dumps({"flashed": str(args.hex), "board": "atmega2560", "port": args.port,
+                      "tool": "avrdude"}) if args.json else
+          f"flashed {args.hex} to the ATmega2560 on {args.port}")
     return 0

@@ -18,33 +18,37 @@ from .errors import check_output
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Register calibrate-range and range."""
     p = sub.add_parser("calibrate-range", help="fit t0 and c with the stage as a ruler")
-    p.add_argument("--sensor")
-    p.add_argument("--stage")
-    p.add_argument("--config", type=Path, default=None)
+    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    p.add_argument("--config", type=Path, default=None, help="TOML file with [ports]")
     p.add_argument("-x", type=float, required=True, help="start X (mm)")
     p.add_argument("-y", type=float, required=True, help="start Y (mm), closest to the target")
     p.add_argument("-z", type=float, required=True, help="start Z (mm)")
     p.add_argument("--start-distance", type=float, required=True,
                    help="beam distance to the flat target at the start (mm)")
-    p.add_argument("--steps", type=int, default=11)
+    p.add_argument("--steps", type=int, default=11, help="depths measured (default 11)")
     p.add_argument("--step", type=float, default=0.5, help="Y step away from the target (mm)")
-    p.add_argument("--shots", type=int, default=10)
-    p.add_argument("--average", type=int, default=16)
+    p.add_argument("--shots", type=int, default=10, help="waveforms per position")
+    p.add_argument("--average", type=int, default=16,
+                   help="laser shots averaged on the board per waveform")
     p.add_argument("--temperature", type=float, default=20.0, help="air temperature (degC)")
     p.add_argument("--lateral", type=int, default=1,
                    help="X positions per depth (0.5 mm apart) to average surface roughness")
     p.add_argument("--fixed-c", action="store_true",
                    help="take c from --temperature and fit t0 only (short travel)")
-    p.add_argument("-o", "--output", type=Path, default=Path("ranging.json"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("-o", "--output", type=Path, default=Path("ranging.json"),
+                   help="ranging calibration to write (default ./ranging.json)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_calibrate_range)
     p = sub.add_parser("range", help="distances from a recorded acquisition (dmdsm acquire)")
-    p.add_argument("file", type=Path)
-    p.add_argument("--calibration", type=Path, default=Path("ranging.json"))
-    p.add_argument("--modality", choices=MODALITIES, default="oa")
+    p.add_argument("file", type=Path, help="HDF5 file from `dmdsm acquire`")
+    p.add_argument("--calibration", type=Path, default=Path("ranging.json"),
+                   help="ranging calibration (default ./ranging.json)")
+    p.add_argument("--modality", choices=MODALITIES, default="oa",
+                   help="which pulse to range (default oa)")
     p.add_argument("--temperature", type=float, default=None,
                    help="use c from this air temperature (degC) instead of the fitted c")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_range)
 
 

@@ -30,7 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", type=Path, default=Path("calibration.toml"))
     p.add_argument("--ranging", type=Path, default=Path("ranging.json"))
     p.add_argument("--plan", type=Path, required=True, help="scan plan TOML")
-    p.add_argument("-o", "--db", type=Path, required=True, help="database directory")
+    p.add_argument("--db", type=Path,
+                   help="database folder (created if missing; DB/scans/ID.h5 per scan)")
+    p.add_argument("-o", dest="db", type=Path, help=argparse.SUPPRESS)  # round 1's name
     p.add_argument("--object", dest="object_id", help="override [sample] object_id")
     p.add_argument("--material", help="override [sample] material")
     p.add_argument("--scan-id", help="name of the scan (default: object id + plan hash)")
@@ -43,6 +45,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     """Check the whole plan, then measure its points; resumable; Ctrl-C stops the stage."""
     from tqdm import tqdm
 
+    if args.db is None:
+        raise CliError("give --db DIR: the scan database folder (created if missing)")
     try:
         plan = load_plan(args.plan, object_id=args.object_id, material=args.material)
     except PlanError as e:

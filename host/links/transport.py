@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 
 import serial
 
@@ -18,6 +19,10 @@ def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialB
     if "://" not in name and not os.path.exists(name):
         raise LinkError(f"{name} does not exist: check the cable, or list ports with "
                         f"`dmdsm ports`")
+    if "://" not in name and not stat.S_ISCHR(os.stat(name).st_mode):
+        kind = "a folder" if os.path.isdir(name) else "a plain file"
+        raise LinkError(f"{name} is {kind}, not a serial port: give the board's port "
+                        f"(e.g. /dev/ttyACM0; `dmdsm ports` lists them)")
     try:
         if "://" in name:
             return serial.serial_for_url(name, baudrate=baudrate, timeout=timeout)

@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from ..links.safety import TABLE_I
-from .calibrate import MODALITIES, RangingSetup, fit_range, gate_for, learn_template
+from .calibrate import (
+    MODALITIES,
+    T0_MAX_S,
+    K,
+    RangeCal,
+    RangingSetup,
+    fit_range,
+    gate_for,
+    learn_template,
+)
 from .matched_filter import MatchedFilter, speed_of_sound_mm_s
 
 
@@ -71,6 +80,7 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
         t_spot = np.array([_spot_time(t[spot == s]) for s in ids])
         first = np.array([np.argmax(spot == s) for s in ids])
         cal = fit_range(t_spot, d[first], m, None if fit_c else c0, off[first])
+        check_start_distance(cal, start_distance_mm)
         templates[m], gates[m], cals[m] = tmpl, (lo, hi), cal
         report[m] = (f"t0 {cal.t0_s * 1e6:.4f} +/- {cal.t0_std_s * 1e6:.4f} us, "
                      f"c {cal.c_mm_s / 1e3:.2f} +/- {cal.c_std_mm_s / 1e3:.2f} m/s "
@@ -84,3 +94,21 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
 def _spot_time(t: np.ndarray) -> float:
     """Arrival time (s) at one surface spot: the median over its shots (NaN if none)."""
     return float(np.nanmedian(t)) if np.isfinite(t).any() else np.nan
+
+
+def check_start_distance(cal: RangeCal, start_distance_mm: float) -> None:
+    """Refuse a fit whose t0 says the given start distance is wrong: an echo cannot arrive
+    before the laser fires (t0 >= 0), nor later than any trigger delay (T0_MAX_S). A
+    start distance off by D mm moves t0 by -K D / c and leaves c alone, so a wrong gauge
+    reading is invisible in the residuals and shows only here."""
+    m, sigma = cal.modality.upper(), 4 * cal.t0_std_s
+    least_mm = -(cal.t0_s + sigma) * cal.c_mm_s / K[cal.modality]
+    if cal.t0_s + sigma < 0:
+        raise ValueError(f"--start-distance {start_distance_mm:g} mm is too long by at least "
+                         f"{least_mm:.2f} mm: it gives t0 {m} = "
+                         f"{cal.t0_s * 1e6:.3f} us, but an echo cannot arrive before the "
+                         f"laser fires; measure the distance to the target again")
+    if cal.t0_s - sigma > T0_MAX_S:
+        raise ValueError(f"--start-distance {start_distance_mm:g} mm is too short: it gives "
+                         f"t0 {m} = {cal.t0_s * 1e6:.1f} us, more than any trigger delay "
+                         f"({T0_MAX_S * 1e6:g} us); measure the distance to the target again")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -168,7 +169,7 @@ def stage_block(d: Demo) -> Section:
                           "[0.0, 90.0, 180.0, 270.0]", 32.0, 4.0 if d.quick else 2.0, "both"))
     s = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
                          str(d.out / "calibration.toml"), "--ranging",
-                         str(d.out / "ranging.json"), "--plan", str(plan), "-o",
+                         str(d.out / "ranging.json"), "--plan", str(plan), "--db",
                          str(d.out / "validation"), "--json").splitlines()[-1])
     truth = d.out / "block.toml"
     truth.write_text('shape = "box"\nsize_mm = [50.0, 30.0, 40.0]\n')
@@ -236,7 +237,7 @@ def stage_household(d: Demo) -> Section:
                               0.35 * w, 8.0 if d.quick else 4.0, mod))
         s = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
                              str(d.out / "calibration.toml"), "--ranging",
-                             str(d.out / "ranging.json"), "--plan", str(plan), "-o",
+                             str(d.out / "ranging.json"), "--plan", str(plan), "--db",
                              str(d.out / "db"), "--json").splitlines()[-1])
         scan = read_scan(Path(s["file"]), waveforms=False)
         p = scan.points
@@ -288,9 +289,11 @@ def stage_classify(d: Demo) -> Section:
 
 
 def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = False,
-             speed: float = 8.0) -> int:
+             speed: float = 8.0, as_json: bool = False) -> int:
     """Run every stage through `command` (the `dmdsm` entry point: argv -> exit code), write
-    out/report.html and out/report.md; 0 if all passed."""
+    out/report.html, out/report.md and out/summary.json; 0 if all passed. as_json: progress
+    to stderr, the summary as one JSON line on stdout."""
+    say = sys.stderr if as_json else sys.stdout
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
@@ -308,7 +311,7 @@ def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = Fa
             sec.seconds = time.perf_counter() - t0
             sections.append(sec)
             print(f"{sec.title}: {'ok' if sec.ok else 'FAILED'} ({sec.seconds:.0f} s)",
-                  flush=True)
+                  flush=True, file=say)
             if not sec.ok and stage in (stage_ranging, stage_rig):
                 break  # later stages need these
     finally:
@@ -318,10 +321,13 @@ def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = Fa
     sections[-1].text.append(f"Total {total:.0f} s on this machine.")
     (out / "report.md").write_text(markdown(title, sections))
     (out / "report.html").write_text(html_page(title, sections))
-    (out / "summary.json").write_text(json.dumps(
-        {"ok": bool(all(s.ok for s in sections)), "seconds": total,
-         "stages": {s.title.split(".")[0]: {"title": s.title, "ok": bool(s.ok),
-                                            "seconds": s.seconds, "values": s.values}
-                    for s in sections}}, indent=1, default=float))
-    print(f"report: {out / 'report.html'} ({total:.0f} s)")
+    summary = {"ok": bool(all(s.ok for s in sections)), "seconds": total,
+               "report": str(out / "report.html"),
+               "stages": {s.title.split(".")[0]: {"title": s.title, "ok": bool(s.ok),
+                                                  "seconds": s.seconds, "values": s.values}
+                          for s in sections}}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    print(f"report: {out / 'report.html'} ({total:.0f} s)", file=say)
+    if as_json:
+        print(json.dumps(summary, default=float))
     return 0 if all(s.ok for s in sections) and len(sections) == len(stages) else 1

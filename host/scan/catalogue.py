@@ -10,7 +10,7 @@ import sqlite3
 from pathlib import Path
 
 from ..files import file_hash
-from .scanfile import ScanFileError, read_scan
+from .scanfile import ScanFileError, read_scan, writer_alive
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS scans (
@@ -44,7 +44,7 @@ def connect(db_dir: Path, create: bool = False) -> sqlite3.Connection:
     if not db_dir.is_dir():
         if not create:
             raise CatalogueError(f"{db_dir} is not a scan database (no such directory); "
-                                 f"`dmdsm scan -o {db_dir}` creates one")
+                                 f"`dmdsm scan --db {db_dir}` creates one")
         (db_dir / "scans").mkdir(parents=True)
     path = db_dir / "catalogue.sqlite"
     try:
@@ -66,9 +66,12 @@ def record(db_dir: Path, scan_id: str, *, n_planned: int, content_hash: str = ""
     db_dir = Path(db_dir)
     path = db_dir / "scans" / f"{scan_id}.h5"
     s = read_scan(path, waveforms=False)
+    status = str(s.entry.get("status", ""))
+    if status == "running" and not writer_alive(path):
+        status = "interrupted"  # its writer was killed
     row = (scan_id, str(s.sample.get("name", "")), str(s.sample.get("material", "")),
            str(s.entry.get("start_time", "")), str(s.entry.get("end_time", "")),
-           str(s.entry.get("status", "")), str(path.relative_to(db_dir)), s.n_points,
+           status, str(path.relative_to(db_dir)), s.n_points,
            n_planned, str(s.entry.get("plan_hash", "")), content_hash)
     with connect(db_dir) as con:
         con.execute(f"INSERT OR REPLACE INTO scans ({', '.join(COLUMNS)}) VALUES "
@@ -94,7 +97,20 @@ def list_scans(db_dir: Path, object_id: str | None = None,
             r["status"] = f"refused: {r['path']!r} is not a file in {scans}"
             p = scans / f"{r['scan_id']}.refused"
         r["path"] = str(p)
+        if r["status"] == "running":  # the row is written at start and end: ask the file
+            _live_row(r, p)
     return rows
+
+
+def _live_row(row: dict, path: Path) -> None:
+    """A running row as its file and writer say now: the points on disk, and `interrupted`
+    if the process writing it is gone (kill -9, power loss)."""
+    if not writer_alive(path):
+        row["status"] = "interrupted"
+    try:
+        row["n_points"] = read_scan(path, waveforms=False).n_points
+    except ScanFileError as e:
+        row["status"] = f"damaged: {e}"
 
 
 def find_scan(db_dir: Path, scan_id: str) -> dict:

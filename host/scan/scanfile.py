@@ -86,9 +86,10 @@ def _finished(d: object) -> int:
 class ScanWriter:
     """Appends points to a scan file; create() starts one, resume() continues one."""
 
-    def __init__(self, f: object, path: Path) -> None:
+    def __init__(self, f: object, path: Path, lock: int) -> None:
         self.f = f
         self.path = path
+        self.lock = lock
         self.data = f["/entry/data"]
         self.n_done = _finished(self.data)
 
@@ -103,7 +104,12 @@ class ScanWriter:
         if path.exists():
             raise ScanFileError(f"{path} already exists")
         path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(path, "w-", libver="latest")
+        lock = _take_writer_lock(path)
+        try:
+            f = h5py.File(path, "w-", libver="latest")
+        except BaseException:
+            _drop_writer_lock(path, lock)
+            raise
         f.attrs.update(format_name="dmdsm-scan", format_version=FORMAT_VERSION,
                        default="entry")
         e = f.create_group("entry")
@@ -131,7 +137,7 @@ class ScanWriter:
             d.create_dataset(name, (0, *shape), maxshape=(None, *shape), dtype=dtype,
                              chunks=(256, *shape))
         f.swmr_mode = True  # readers may open with swmr=True while points arrive
-        return cls(f, path)
+        return cls(f, path, lock)
 
     @classmethod
     def resume(cls, path: Path, plan_hash: str) -> ScanWriter:
@@ -140,13 +146,18 @@ class ScanWriter:
         import h5py
 
         path = Path(path)
+        lock = _take_writer_lock(path)
         try:
-            f = h5py.File(path, "r+", libver="latest")
-        except OSError as e:
-            if "already open" not in str(e):
-                raise ScanFileError(f"{path}: not a readable scan file ({e})") from None
-            _recover(path)  # a crashed writer left the file marked open
-            f = h5py.File(path, "r+", libver="latest")
+            try:
+                f = h5py.File(path, "r+", libver="latest")
+            except OSError as e:
+                if "already open" not in str(e):
+                    raise ScanFileError(f"{path}: not a readable scan file ({e})") from None
+                _recover(path)  # a crashed writer left the file marked open
+                f = h5py.File(path, "r+", libver="latest")
+        except BaseException:
+            _drop_writer_lock(path, lock)
+            raise
         try:
             if f.attrs.get("format_name") != "dmdsm-scan":
                 raise ScanFileError(f"{path} is not a dmdsm scan file")
@@ -162,8 +173,9 @@ class ScanWriter:
             f.swmr_mode = True
         except BaseException:
             f.close()
+            _drop_writer_lock(path, lock)
             raise
-        return cls(f, path)
+        return cls(f, path, lock)
 
     def append(self, waveform: np.ndarray, **values: object) -> None:
         """Store one finished point (values: every name of POINT_FIELDS) and flush."""
@@ -190,6 +202,58 @@ class ScanWriter:
         with h5py.File(self.path, "r+") as f:
             f["/entry"].attrs.update(status=status,
                                      end_time=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+        _drop_writer_lock(self.path, self.lock)
+
+
+def _lock_path(path: Path) -> Path:
+    return Path(path).with_name(Path(path).name + ".writer")
+
+
+def _take_writer_lock(path: Path) -> int:
+    """flock DB/scans/ID.h5.writer for as long as this process writes the scan (the kernel
+    drops it when the process dies, so a kill -9 leaves no live-looking writer)."""
+    import fcntl
+    import os
+
+    fd = os.open(_lock_path(path), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        pid = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise ScanFileError(f"{path} is being written by another dmdsm (pid {pid}); wait for "
+                            f"it or stop it first") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    return fd
+
+
+def _drop_writer_lock(path: Path, fd: int) -> None:
+    import os
+
+    try:
+        _lock_path(path).unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
+def writer_alive(path: Path) -> bool:
+    """True while a process holds the scan's writer lock (a scan marked running whose writer
+    is gone was killed: its finished points are in the file)."""
+    import fcntl
+    import os
+
+    try:
+        fd = os.open(_lock_path(path), os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
 
 
 PROBE_S = 20.0  # a damaged file read in SWMR mode can retry for ever: a child gets this long

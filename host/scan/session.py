@@ -115,7 +115,6 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
     done = _complete(scan_id, path)
     if done is not None:
         return done
-    connect(Path(db), create=True).close()
     if home:
         stage.home()
     here = stage.where()
@@ -126,6 +125,7 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
     ident["spec_hash"] = f"{ident['spec_hash']:016x}"
     sensor_attrs = {**ident, "port": sensor.port_name,
                     **{f"config_{k}": val for k, val in sc.items()}}
+    connect(Path(db), create=True).close()  # only now: a refused scan leaves no folder
     if path.exists():
         writer = ScanWriter.resume(path, run_hash)
     else:

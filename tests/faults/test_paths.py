@@ -88,7 +88,7 @@ def test_a_catalogue_row_pointing_outside_the_database_is_not_opened(tmp_path):
     ["db", "export", "{scan_id}", "--db", "{db}", "--csv", "{missing}/p.csv"],
     ["classify", "train", "--db", "{db}", "-o", "{missing}/m.model"],
     ["scan", "--plan", "{plan}", "--calibration", "{cal}", "--ranging", "{ranging}",
-     "-o", "{plain}"],
+     "--db", "{plain}"],
 ])
 def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, inputs,
                                                                       command):

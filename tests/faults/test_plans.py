@@ -46,7 +46,7 @@ def test_the_scan_command_refuses_a_huge_plan_quickly_and_in_little_memory(tmp_p
     code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 31, 1 << 31));"
             "from dmdsm.host.commands.cli import main; sys.exit(main(sys.argv[1:]))")
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-c", code, "scan", "--plan", str(path), "-o",
+    r = subprocess.run([sys.executable, "-c", code, "scan", "--plan", str(path), "--db",
                         str(tmp_path / "db")], capture_output=True, text=True, timeout=60)
     assert time.perf_counter() - t0 < 30
     assert r.returncode == 2 and "points (at most" in r.stderr, r.stderr

@@ -78,9 +78,18 @@ def test_calibrate_range_and_range_commands(emulator, tmp_path):
         return subprocess.run([sys.executable, "-m", "dmdsm.host", *a], capture_output=True,
                               text=True, timeout=300)
 
-    r = dmdsm("calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235",
-              "-y", "266", "-z", "20", "--start-distance", f"{d0:.4f}", "--steps", "11",
-              "--step", "1", "--shots", "3", "-o", str(cal), "--json")
+    def calibrate(start_mm, *more):
+        return dmdsm("calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x",
+                     "235", "-y", "266", "-z", "20", "--start-distance", f"{start_mm:.4f}",
+                     "-o", str(cal), "--json", *more)
+
+    # round 1's README: a gauge reading 0.76 mm too long, c from the air: t0 OA < 0 is
+    # refused, not saved
+    r = calibrate(d0 + 0.76, "--lateral", "5", "--fixed-c", "--temperature", "20")
+    assert r.returncode == 2 and not cal.exists(), r.stderr
+    assert "is too long by at least" in r.stderr and "t0 OA" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    r = calibrate(d0, "--steps", "11", "--step", "1", "--shots", "3")
     assert r.returncode == 0, r.stderr
     assert "c " in json.loads(r.stdout)["oa"]
     with StageClient(emu.stage) as st:
@@ -90,6 +99,9 @@ def test_calibrate_range_and_range_commands(emulator, tmp_path):
     h5 = tmp_path / "shots.h5"
     assert dmdsm("acquire", "--sensor", emu.sensor, "--shots", "6", "-o", str(h5)
                  ).returncode == 0
+    before = h5.read_bytes()
+    r = dmdsm("acquire", "--sensor", emu.sensor, "--shots", "2", "-o", str(h5))
+    assert r.returncode == 2 and "--force" in r.stderr and h5.read_bytes() == before
     r = dmdsm("range", str(h5), "--calibration", str(cal), "--modality", "us", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)

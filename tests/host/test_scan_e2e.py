@@ -83,7 +83,7 @@ def test_block_scan_with_a_calibration_from_dmdsm_calibrate_meets_the_paper(emul
     plan.write_text(PLAN.format(levels="[12.0, 24.0]", step=2.0))
     db = tmp_path / "db"
     r = json.loads(dmdsm("scan", *ports, "--calibration", str(cal), "--ranging", str(ranging),
-                         "--plan", str(plan), "-o", str(db), "--json").stdout.splitlines()[-1])
+                         "--plan", str(plan), "--db", str(db), "--json").stdout.splitlines()[-1])
     assert r["points"] == 2 * 4 * 33
     truth = tmp_path / "block.toml"
     truth.write_text('shape = "box"\nsize_mm = [50.0, 30.0, 40.0]\n')
@@ -124,7 +124,7 @@ def test_block_scan_with_a_calibration_from_dmdsm_calibrate_meets_the_paper(emul
 def _scan_cmd(emu, tmp_path, db, scan_id):
     return [sys.executable, "-m", "dmdsm.host", "scan", "--sensor", emu.sensor, "--stage",
             emu.stage, "--calibration", str(tmp_path / "cal.toml"), "--ranging",
-            str(tmp_path / "ranging.json"), "--plan", str(tmp_path / "plan.toml"), "-o",
+            str(tmp_path / "ranging.json"), "--plan", str(tmp_path / "plan.toml"), "--db",
             str(db), "--scan-id", scan_id]
 
 
@@ -165,6 +165,9 @@ def test_interrupted_scan_resumes_to_the_same_file(emulator, tmp_path, sig):
         assert cut.entry["status"] == "interrupted"
         with StageClient(emu.stage) as st:  # the stage was stopped and still answers
             st.where()
+    rows = {x["scan_id"]: x for x in json.loads(dmdsm("db", "list", "--db", str(db),
+                                                      "--json").stdout)}
+    assert (rows["cut"]["status"], rows["cut"]["n_points"]) == ("interrupted", cut.n_points)
     r = subprocess.run(_scan_cmd(emu, tmp_path, db, "cut"), capture_output=True, text=True,
                        timeout=900)
     assert r.returncode == 0, r.stderr

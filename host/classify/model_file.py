@@ -23,7 +23,6 @@ import numpy as np
 from .. import __version__
 from ..files import one_line
 from .materials import MODS, PRE, ClassifyError, Dataset, FusedModel, make_classifier
-from .ridge import log_softmax, two_columns
 
 MODEL_FORMAT = "dmdsm-classifier/2"
 MAX_MEMBERS = 256                  # arrays in one model file
@@ -59,6 +58,8 @@ class MiniRocketState:
             MiniRocket,
             _static_transform_uni,
         )
+
+        from .ridge import log_softmax, two_columns  # scikit-learn: imported when used
 
         f = _static_transform_uni(np.ascontiguousarray(X[:, 0, :], np.float32),
                                   self.parameters, MiniRocket._indices)

@@ -19,7 +19,7 @@ from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
 from . import calibrate, classify, db, devices, flash, range, scan, sim
-from .errors import CliError
+from .errors import CliError, Terminated, terminate
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,13 +52,6 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(args.out, main, quick=args.quick, as_json=args.json)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, taken as Ctrl-C: every command's Ctrl-C path (disarm the board, quick-stop
-    the stage, keep what was measured) runs for it too."""
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise Terminated()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     for SIGTERM)."""
     args = build_parser().parse_args(argv)
     try:
-        previous = signal.signal(signal.SIGTERM, _terminate)
+        previous = signal.signal(signal.SIGTERM, terminate)
     except ValueError:  # not the main thread (a test or the demo calling main): leave it
         previous = None
     try:

@@ -6,6 +6,16 @@ import os
 from pathlib import Path
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, taken as Ctrl-C: every command's Ctrl-C path (disarm the board, quick-stop
+    the stage, keep what was measured) runs for it too."""
+
+
+def terminate(signum: int, frame: object) -> None:
+    """SIGTERM handler: raise Terminated where the program is."""
+    raise Terminated()
+
+
 class CliError(Exception):
     """An error shown to the user as one line, without a traceback."""
 

@@ -8,6 +8,7 @@ the device's counters account for every lost shot. Nothing that failed its CRC i
 
 from __future__ import annotations
 
+import logging
 import random
 import threading
 import time
@@ -20,6 +21,8 @@ from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
 from dmdsm.protocol.spec import SAMPLE_DTYPES
 
 from .transport import LinkError, open_port
+
+log = logging.getLogger("dmdsm.sensor")
 
 SPEC = load_spec()
 ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
@@ -104,6 +107,18 @@ class SensorClient:
         self._counters: dict | None = None
         self._open()
         self.identity = self.handshake()
+        self.took_over = self._take_over()
+
+    def _take_over(self) -> bool:
+        """Disarm a board that an earlier client left armed (killed with kill -9, or its
+        cable pulled mid-acquisition); the port is opened exclusively, so no live client
+        owns it. True if it had to."""
+        if self.status()["state"] == SPEC.enums["state"]["idle"]:
+            return False
+        log.warning("the sensor board on %s was still acquiring for an earlier client; "
+                    "disarmed it", self.port_name)
+        self.disarm()
+        return True
 
     # ------------------------------------------------------------------ link
     def _open(self) -> None:

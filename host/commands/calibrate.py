@@ -25,9 +25,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--step", choices=["tip", "edge"],
                      help="scan tip frames (filament horizontal) or edge frames (vertical), "
                           "appending to --data; after the edge step the data is solved")
-    p.add_argument("--sensor")
-    p.add_argument("--stage")
-    p.add_argument("--config", type=Path, default=None)
+    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="TOML file with [ports] and [calibration]")
     p.add_argument("--ranging", type=Path, default=Path("ranging.json"),
                    help="from dmdsm calibrate-range")
     p.add_argument("--data", type=Path, default=Path("rig.csv"),
@@ -40,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "angle 0 (edge step; Z is ignored)")
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 180.0],
                    help="turntable angles of the edge frames (deg)")
-    p.add_argument("--modality", choices=["oa", "us"], default="oa")
+    p.add_argument("--modality", choices=["oa", "us"], default="oa",
+                   help="which pulse ranges the filament (default oa)")
     d = RigPlan.__dataclass_fields__
     p.add_argument("--tip-depths", type=float, nargs="+", metavar="MM",
                    default=list(d["tip_depth_steps"].default),
@@ -64,8 +66,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spot-radius", type=float, default=0.25,
                    help="laser spot radius at the filament (mm): where on the filament's "
                         "front the ranged depth lies (docs/calibration.md)")
-    p.add_argument("-o", "--output", type=Path, default=Path("calibration.toml"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("-o", "--output", type=Path, default=Path("calibration.toml"),
+                   help="calibration to write (default ./calibration.toml)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_calibrate)
 
 

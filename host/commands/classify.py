@@ -40,7 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     t = psub.add_parser("train", parents=[common], help="fit a classifier to a database")
     t.add_argument("--db", type=Path, required=True, help="scan database folder")
-    t.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket")
+    t.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket",
+                   help="default minirocket (seconds to fit); boss as the paper (minutes)")
     t.add_argument("--modality", choices=list(MODALITY), default="both",
                    help="OA and US fused (default) or one alone")
     t.add_argument("-o", "--output", type=Path, required=True,

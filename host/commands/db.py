@@ -59,7 +59,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--truth", type=Path, help="block truth TOML: e = d(X, E) per modality")
     p.add_argument("--ply", type=Path, help="write the point cloud")
     p.add_argument("--plot", type=Path, help="write contours like the paper's Figs. 3-4 (PNG)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_reconstruct)
 
 

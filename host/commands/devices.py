@@ -32,7 +32,7 @@ ROLES = {  # USB VID:PID -> guessed role
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Register ports, info, acquire and stage."""
     p = sub.add_parser("ports", help="list serial ports with a guessed role")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_ports)
 
     common = argparse.ArgumentParser(add_help=False)

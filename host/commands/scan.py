@@ -26,9 +26,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scan", help="scan an object into the database (step and shoot)")
     p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
     p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
-    p.add_argument("--config", type=Path, default=None)
-    p.add_argument("--calibration", type=Path, default=Path("calibration.toml"))
-    p.add_argument("--ranging", type=Path, default=Path("ranging.json"))
+    p.add_argument("--config", type=Path, default=None,
+                   help="TOML file with [ports] and [calibration]")
+    p.add_argument("--calibration", type=Path, default=Path("calibration.toml"),
+                   help="scanner calibration from `dmdsm calibrate` (default ./calibration.toml)")
+    p.add_argument("--ranging", type=Path, default=Path("ranging.json"),
+                   help="ranging calibration from `dmdsm calibrate-range` (default ./ranging.json)")
     p.add_argument("--plan", type=Path, required=True, help="scan plan TOML")
     p.add_argument("--db", type=Path,
                    help="database folder (created if missing; DB/scans/ID.h5 per scan)")

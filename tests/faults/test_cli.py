@@ -1,0 +1,70 @@
+"""The command line is one consistent tool (issue 19, item 9): every command has its own
+options and help, takes --json, names its outputs the same way, and says what to fix when
+given a file where a port belongs."""
+
+import argparse
+
+import pytest
+
+from dmdsm.host.commands.cli import build_parser, main
+
+
+def leaves(parser, path=()):
+    """(command path, parser) of every runnable command."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield path, parser
+        return
+    for name, p in subs[0].choices.items():
+        yield from leaves(p, (*path, name))
+
+
+LEAVES = dict(leaves(build_parser()))
+
+
+def test_there_are_commands_to_check():
+    assert {("stage", "move"), ("db", "list"), ("classify", "predict"), ("demo",),
+            ("flash", "stm32"), ("protocol", "encode"), ("scan",)} <= set(LEAVES)
+
+
+@pytest.mark.parametrize("path", sorted(LEAVES), ids=" ".join)
+def test_every_command_takes_json_and_explains_every_option(path):
+    p = LEAVES[path]
+    opts = {s for a in p._actions for s in a.option_strings}
+    assert "--json" in opts, path
+    for a in p._actions:
+        if a.help != argparse.SUPPRESS and not isinstance(a, argparse._HelpAction):
+            assert a.help, f"{' '.join(path)} {a.option_strings or a.dest} has no help"
+    out = {s for a in p._actions for s in a.option_strings if s in ("-o", "--output")}
+    assert not out or {"-o", "--output"} <= out or path == ("scan",), path  # -o is --output
+
+
+@pytest.mark.parametrize("argv", [
+    ["stage", "home", "-x", "5"],         # a move's option on home
+    ["db", "list", "--csv", "x.csv"],     # export's option on list
+    ["classify", "predict", "--scan", "s.h5"],  # no --model: nothing loaded unasked
+    ["classify", "train", "--db", "db"],  # no -o: where would the model go?
+    ["db", "show", "--db", "db"],         # no scan id
+    ["stage"],                            # no action
+])
+def test_options_of_another_action_are_refused(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2 and "usage:" in capsys.readouterr().err
+
+
+def test_a_group_action_has_its_own_help(capsys):
+    with pytest.raises(SystemExit):
+        main(["db", "list", "--help"])
+    text = capsys.readouterr().out
+    assert "--material" in text and "--csv" not in text and "rebuild" not in text
+
+
+@pytest.mark.parametrize("kind", ["file", "folder"])
+def test_a_file_or_folder_given_as_a_port_is_named(tmp_path, capsys, kind):
+    port = tmp_path / "port"
+    port.mkdir() if kind == "folder" else port.write_text("hello")
+    assert main(["info", "--sensor", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert f"is a {'plain file' if kind == 'file' else 'folder'}, not a serial port" in err
+    assert "Inappropriate ioctl" not in err and len(err.strip().splitlines()) == 1

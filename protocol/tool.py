@@ -123,6 +123,22 @@ def cmd_decode(args: argparse.Namespace, out: TextIO | None = None,
     return 0
 
 
+def _encode_line(no: int, line: str, spec: object) -> bytes | None:
+    """The frame of one JSON line (None for blank lines, comments and decode diagnostics)."""
+    if not line.strip() or line.lstrip().startswith("#"):
+        return None
+    try:
+        obj = json.loads(line)
+    except json.JSONDecodeError as e:
+        raise ToolError(f"line {no}: not JSON ({e.msg} at column {e.colno})") from None
+    if isinstance(obj, dict) and ("error" in obj or "summary" in obj):
+        return None  # decode --json diagnostics
+    try:
+        return encode_frame(from_jsonable(obj, spec), spec)
+    except MessageError as e:
+        raise ToolError(f"line {no}: {e}") from None
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
     """Encode JSON lines into frame bytes."""
     spec = load_spec()
@@ -136,19 +152,15 @@ def cmd_encode(args: argparse.Namespace) -> int:
         except OSError as e:
             raise ToolError(f"cannot read {args.file}: {e.strerror}") from None
     frames = []
-    for no, line in enumerate(lines, 1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        try:
-            obj = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise ToolError(f"line {no}: not JSON ({e.msg} at column {e.colno})") from None
-        if isinstance(obj, dict) and ("error" in obj or "summary" in obj):
-            continue  # decode --json diagnostics
-        try:
-            frames.append(encode_frame(from_jsonable(obj, spec), spec))
-        except MessageError as e:
-            raise ToolError(f"line {no}: {e}") from None
+    try:
+        no = 0
+        for no, line in enumerate(lines, 1):
+            frame = _encode_line(no, line, spec)
+            if frame is not None:
+                frames.append(frame)
+    except UnicodeDecodeError:
+        raise ToolError(f"near line {no + 1}: not UTF-8 text; encode takes JSON lines (a raw "
+                        f"byte capture is read with `dmdsm protocol decode`)") from None
     data = b"".join(frames)
     if args.output == "-":
         sys.stdout.buffer.write(data)

@@ -100,6 +100,8 @@ def test_user_errors_are_one_line_without_traceback(tmp_path):
         (("protocol", "encode"), b'{"type": "ping", "fields": {}}\n', "missing nonce"),
         (("protocol", "encode"), b'{"type": "set_config", "fields": {"trigger_edge": "up"}}\n',
          "'up' is not one of rising, falling"),
+        (("protocol", "encode"), bytes(range(128, 256)) * 4, "not UTF-8 text"),  # a raw capture
+        (("protocol", "encode", "--json"), b'{"type": "ping"}\n', "--json needs -o FILE"),
     ]
     for args, stdin, text in cases:
         r = dmdsm(*args, stdin=stdin)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from collections.abc import Iterator
@@ -144,8 +145,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     spec = load_spec()
     if args.json and args.output == "-":
         raise ToolError("--json needs -o FILE: without it the frames themselves go to stdout")
-    if args.file == "-":
-        lines = sys.stdin
+    if args.file == "-":  # strict UTF-8 whatever the locale (C gives surrogateescape)
+        lines = io.TextIOWrapper(sys.stdin.buffer, encoding="utf-8", errors="strict")
     else:
         try:
             lines = open(args.file, encoding="utf-8")  # noqa: SIM115

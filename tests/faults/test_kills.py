@@ -18,6 +18,7 @@ import pytest
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
+from dmdsm.host.scan.scanfile import read_scan
 
 CMD = [sys.executable, "-m", "dmdsm.host"]
 SIGNALS = {"INT": (signal.SIGINT, 130), "TERM": (signal.SIGTERM, 143),
@@ -33,13 +34,47 @@ def command(name, emu, out):
         return ["calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235",
                 "-y", "266", "-z", "20", "--start-distance", "7.24", "--lateral", "3",
                 "-o", str(out / "ranging.json")]
+    if name == "scan":
+        return ["scan", "--sensor", emu.sensor, "--stage", emu.stage, "--calibration",
+                str(out.parent / "in" / "cal.toml"), "--ranging",
+                str(out.parent / "in" / "ranging.json"), "--plan",
+                str(out.parent / "in" / "plan.toml"), "--db", str(out / "db"),
+                "--scan-id", "cut"]
     return ["stage", "move", "--stage", emu.stage, "-y", "100", "--feed", "300"]
 
 
-def readable(out):
-    """Every file left in `out` is complete and readable (or a named temporary)."""
+def scan_inputs(emu, folder):
+    """Calibration (the emulator's truth), a ranging setup and a one-level block plan."""
+    from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
+    from dmdsm.host.ranging.matched_filter import gaussian_pulse
+
+    folder.mkdir()
+    s = emu.sim.scene
+    (folder / "cal.toml").write_text(f"[calibration]\nv = {s.v.tolist()}\nn = "
+                                     f"{s.n.tolist()}\nX_R = {s.X_R.tolist()}\n")
+    fs = 240e6 / 67
+    RangingSetup(fs, {"us": gaussian_pulse(fs, 1e6, 0.8)}, {"us": (0, 1024)},
+                 {"us": RangeCal("us", 4e-6, 343e3, 1e-8, 0, 0.1, 21)}
+                 ).save(folder / "ranging.json")
+    (folder / "plan.toml").write_text(
+        '[sample]\nobject_id = "aluminium_block"\nmaterial = "aluminium"\n[object]\n'
+        'radius_mm = 30.0\nheight_mm = 40.0\n[scan]\nlevels_mm = [20.0]\n'
+        'angles_deg = [0.0, 90.0]\nhalf_width_mm = 32.0\nstep_mm = 2.0\n')
+
+
+def readable(out, killed):
+    """Every file left in `out` is complete and readable; a scan's catalogue row says
+    `interrupted` with the points its file holds."""
     for p in out.iterdir():
-        if p.name == "shots.h5":
+        if p.name == "db":
+            rows = json.loads(subprocess.run(CMD + ["db", "list", "--db", str(p), "--json"],
+                                             capture_output=True, text=True).stdout)
+            for r in rows:
+                n = read_scan(r["path"], waveforms=False).n_points
+                assert (r["status"], r["n_points"]) == ("interrupted", n), r
+            left = {q.name for q in (p / "scans").iterdir()}
+            assert left <= {"cut.h5"} | ({"cut.h5.writer"} if killed else set()), left
+        elif p.name == "shots.h5":
             with h5py.File(p, "r") as f:
                 assert f["/entry"].attrs["status"] in ("interrupted", "complete")
                 assert f["/entry/data/received"][:].sum() > 0
@@ -59,7 +94,7 @@ def settled(stage_port, wait_s=0.6):
 
 
 @pytest.mark.parametrize("sig", list(SIGNALS))
-@pytest.mark.parametrize("name", ["acquire", "calibrate-range", "stage-move"])
+@pytest.mark.parametrize("name", ["acquire", "calibrate-range", "stage-move", "scan"])
 def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig):
     rng = np.random.default_rng(zlib.crc32(f"{name} {sig}".encode()))
     delay_s = float(rng.uniform(1.5, 4.0))  # printed by pytest on failure
@@ -68,6 +103,8 @@ def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig)
         st.home()
         st.move(x=235, y=266, z=20, wait=True)
         st.wait()
+    if name == "scan":
+        scan_inputs(emu, tmp_path / "in")
     out, cwd = tmp_path / "out", tmp_path / "cwd"
     out.mkdir()
     cwd.mkdir()
@@ -93,7 +130,7 @@ def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig)
         assert r.returncode == 0, r.stderr
         assert settled(emu.stage)
     assert list(cwd.iterdir()) == []  # nothing written where the user did not point
-    readable(out)
+    readable(out, signum == signal.SIGKILL)
     armed = emu.sim.sensor.core.state != 0  # possible only after kill -9
     assert not armed or signum == signal.SIGKILL
     sc = SensorClient(emu.sensor)  # the next acquisition works

@@ -48,8 +48,9 @@ class MarlinEmulator(GcodeMixin):
         self.reset(0.0)
 
     # ------------------------------------------------------------------ state
-    def reset(self, now: float) -> None:
-        """Hardware reset: everything lost, boot banner sent."""
+    def reset(self, now: float, boot_s: float = 0.0) -> None:
+        """Hardware reset: everything lost; the bootloader ignores the serial line for boot_s
+        (opening the port toggles DTR, which resets a real ATmega2560), then the banner."""
         n = len(self.limits.axes)
         self.planner = Planner(self.limits)
         self.rx = bytearray()
@@ -61,7 +62,8 @@ class MarlinEmulator(GcodeMixin):
         self.relative = False
         self.feed_mm_s = 50.0
         self.current = np.zeros(n)  # logical position of the last queued move (mm, deg)
-        self.offset = np.zeros(n)   # logical - raw (G92)
+        self.offset = np.zeros(n)   # logical - raw (homing's min position + G92 shift)
+        self.native0 = np.zeros(n)  # native - raw: the min position once an axis is homed
         self.homed = [False] * n
         self.blocking: dict | None = None  # the command in progress that holds the queue
         self.auto_report_s = 0.0
@@ -69,8 +71,16 @@ class MarlinEmulator(GcodeMixin):
         self.emergency = bytearray()
         self.executed: list[tuple[int | None, str]] = []  # ground truth: (N, command) in order
         self.now = now
-        self.out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Last Updated: 2024-10-21",
-                     "echo:Compiled for the Anycubic Chiron with a turntable on axis A"]
+        self.booting_until = now + boot_s
+        self.banner_due = True
+        self._boot(now)
+
+    def _boot(self, now: float) -> None:
+        """The boot banner, once the bootloader has passed control to Marlin."""
+        if self.banner_due and now >= self.booting_until:
+            self.banner_due = False
+            self.out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Last Updated: 2024-10-21",
+                         "echo:Compiled for the Anycubic Chiron with a turntable on axis A"]
 
     def position(self) -> np.ndarray:
         """Ground truth: where the stage is now (mm, deg), in raw machine coordinates."""
@@ -80,11 +90,15 @@ class MarlinEmulator(GcodeMixin):
     # ------------------------------------------------------------------ bytes in/out
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host; the emergency parser sees them at once."""
+        if now < self.booting_until:
+            return  # the bootloader is not Marlin: the bytes are gone
         self._run(now)
         for b in data:
             self._emergency(b, now)
+            if len(self.rx) >= self.limits.rx_buffer_size:
+                self._run(now)  # the main loop reads the ring while bytes keep arriving
             if len(self.rx) < self.limits.rx_buffer_size:
-                self.rx.append(b)
+                self.rx.append(b)  # else lost, as on the ATmega2560 (command slots full)
         self._run(now)
 
     def step(self, now: float) -> bytes:
@@ -96,7 +110,8 @@ class MarlinEmulator(GcodeMixin):
 
     def _run(self, now: float) -> None:
         self.now = max(self.now, now)
-        if not self.killed:
+        self._boot(self.now)
+        if not self.killed and self.now >= self.booting_until:
             self.planner.update(self.now)
             for _ in range(64):  # bounded work per call
                 if self.blocking is not None and not self._blocking_done():
@@ -192,7 +207,7 @@ class MarlinEmulator(GcodeMixin):
         if self.faults.lost_ok and self.rng.random() < self.faults.lost_ok:
             return
         free_p = self.limits.block_buffer_size - len(self.planner.queue) - 1
-        free_b = self.limits.bufsize - len(self.queue)
+        free_b = self.limits.bufsize - len(self.queue) - 1  # this command still holds a slot
         self.out.append(f"ok{f' N{n}' if n is not None else ''} P{max(free_p, 0)} B{free_b}")
 
     # ------------------------------------------------------------------ blocking commands

@@ -7,6 +7,7 @@ import re
 import numpy as np
 
 FIRMWARE_NAME = "Marlin bugfix-2.1.x (dmdsm hil_sim)"
+Z_AFTER_HOMING_MM = 5.0  # the real Chiron build stands at Z 5.00 after G28 (issue 20)
 
 WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
 CAPS = ("SERIAL_XON_XOFF:0", "BINARY_FILE_TRANSFER:0", "EEPROM:1", "VOLUMETRIC:0",
@@ -21,8 +22,11 @@ CAPS = ("SERIAL_XON_XOFF:0", "BINARY_FILE_TRANSFER:0", "EEPROM:1", "VOLUMETRIC:0
 
 
 def parse_words(cmd: str) -> tuple[str, dict[str, float | None]]:
-    """('G1', {'X': 10.0, 'F': 3000.0}) from 'G1 X10 F3000'; the code is upper-cased."""
-    words = WORD.findall(cmd.upper())
+    """('G1', {'X': 10.0, 'F': 3000.0}) from 'G1 X10 F3000'. Case matters, as in Marlin
+    without GCODE_CASE_INSENSITIVE: 'g1 x15' is no command ('', {})."""
+    if not cmd[:1].isupper():
+        return "", {}
+    words = WORD.findall(cmd)
     if not words:
         return "", {}
     (letter, num), *rest = words
@@ -54,11 +58,22 @@ class GcodeMixin:
     def _axes(self) -> list[str]:
         return list(self.limits.axes)
 
-    def _position_line(self) -> str:
-        """The M114 / M154 report: logical position of the last move, then stepper counts."""
+    def _counts(self, raw: np.ndarray) -> np.ndarray:
+        """Stepper counts as Marlin keeps them: native position x steps/unit (homing sets the
+        count to the min position's, G92 leaves it alone)."""
+        return np.rint((raw + self.native0) * self.planner.spu).astype(np.int64)
+
+    def _position_line(self, live: bool = False) -> str:
+        """The M114 / M154 report: logical position of the last move, then the counts of
+        that target (live: where the steppers are now, as M114 R)."""
         self.planner.update(self.now)
-        pos = " ".join(f"{a}:{v:.2f}" for a, v in zip(self._axes(), self.current))
-        counts = " ".join(f"{a}:{int(s)}" for a, s in zip(self._axes(), self.planner.steps))
+        if live:
+            raw = self.planner.position()
+            pos_v, counts_v = raw + self.offset, self._counts(raw)
+        else:
+            pos_v, counts_v = self.current, self._counts(self.current - self.offset)
+        pos = " ".join(f"{a}:{v:.2f}" for a, v in zip(self._axes(), pos_v))
+        counts = " ".join(f"{a}:{int(c)}" for a, c in zip(self._axes(), counts_v))
         return f"{pos} Count {counts}"
 
     def _sync_current_from_steppers(self) -> None:
@@ -72,9 +87,9 @@ class GcodeMixin:
                 continue
             target[i] = target[i] + v if self.relative else v
             lo, hi = self.limits.min_pos[i], self.limits.max_pos[i]
-            if self.homed[i]:  # soft endstops apply to homed axes only
-                raw = target[i] - self.offset[i]
-                target[i] = min(max(raw, lo), hi) + self.offset[i]
+            if self.homed[i]:  # soft endstops: on the native position, homed axes only
+                shift = self.offset[i] - self.native0[i]  # G92's
+                target[i] = min(max(target[i] - shift, lo), hi) + shift
         return target
 
     # ------------------------------------------------------------------ motion
@@ -108,13 +123,23 @@ class GcodeMixin:
             dist = abs(physical[i]) + 5.0 + 5.0 * 2
             t += dist / (self.limits.homing_feedrate_mm_m[i] / 60.0)
 
+        z_raise = "Z" in which and Z_AFTER_HOMING_MM > self.limits.min_pos[2]
+        if z_raise:
+            t += (Z_AFTER_HOMING_MM - self.limits.min_pos[2]) / (
+                self.limits.homing_feedrate_mm_m[2] / 60.0)
+
         def done() -> None:
             for a in which:
                 i = self.limits.axis(a)
-                self.offset[i] = self.limits.min_pos[i]  # endstop at raw 0 = logical min
+                self.offset[i] = self.native0[i] = self.limits.min_pos[i]  # raw 0: endstop
                 self.current[i] = self.limits.min_pos[i]
                 self.homed[i] = True
                 self.planner.steps[i] = 0
+            if z_raise:  # the Chiron example's Z_AFTER_HOMING: the nozzle clears the bed
+                i = self.limits.axis("Z")
+                self.current[i] = Z_AFTER_HOMING_MM
+                self.planner.steps[i] = round((Z_AFTER_HOMING_MM - self.offset[i]) *
+                                              self.planner.spu[i])
             self.out.append(self._position_line())
 
         self._block("sync", t, n, then=done)
@@ -132,6 +157,7 @@ class GcodeMixin:
                 raw = self.current[i] - self.offset[i]
                 self.offset[i] = words[a] - raw
                 self.current[i] = words[a]
+        self.out.append(self._position_line())  # Marlin's G92 reports the new position
 
     # ------------------------------------------------------------------ M codes
     def _M17(self, words: dict, n: int | None) -> None:
@@ -142,33 +168,34 @@ class GcodeMixin:
 
     _M84 = _M18
 
-    def _M105(self, words: dict, n: int | None) -> None:
-        pass  # no temperature sensors: a plain ok
+    def _M105(self, words: dict, n: int | None) -> bool:
+        # M105 sends its own "ok" with the temperatures (none here): no N, P or B, even for
+        # a numbered line, so its ok proves nothing about line numbers
+        self.out.append("ok T:0")
+        return False
 
     def _M110(self, words: dict, n: int | None) -> None:
         if words.get("N") is not None:
             self.last_n = int(words["N"])
 
     def _M114(self, words: dict, n: int | None) -> bool | None:
-        if "R" in words:  # M114_REALTIME: where the steppers are now
-            self.planner.update(self.now)
-            real = self.planner.position() + self.offset
-            self.out.append(" ".join(f"{a}:{v:.2f}" for a, v in zip(self._axes(), real)))
+        if "R" in words:  # M114_REALTIME: where the steppers are now, with their counts
+            self.out.append(self._position_line(live=True))
             return None
         if "D" in words:  # M114_DETAIL: synchronises the planner first
             def detail() -> None:
-                raw = self.current - self.offset
-                fmt = " ".join
+                native = self.current - self.offset + self.native0
+
+                def fmt(axes: object, values: object, digits: int = 3) -> str:
+                    return "".join(f" {a}:{v:8.{digits}f}" for a, v in zip(axes, values))
+                from_steps = self.planner.position() + self.native0
                 self.out += [
-                    "Logical: " + fmt(f"{a}:{v:.2f}" for a, v in zip("XYZ", self.current)),
-                    "Raw:     " + fmt(f"{a}:{v:.2f}" for a, v in zip("XYZ", raw)),
-                    "Stepper: " + fmt(f"{a}:{int(s)}" for a, s in
-                                      zip(self._axes(), self.planner.steps)),
-                    "FromStp: " + fmt(f"{a}:{v:.2f}" for a, v in
-                                      zip(self._axes(), self.planner.position())),
-                    "Diff:    " + fmt(f"{a}:{v:.2f}" for a, v in
-                                      zip(self._axes(), self.planner.position() - raw)),
-                    self._position_line()]
+                    self._position_line(), "",
+                    "Logical:" + fmt("XYZ", self.current),
+                    "Raw:    " + fmt("XYZ", native),
+                    "Stepper:" + fmt(self._axes(), self._counts(self.planner.position()), 0),
+                    "FromStp:" + fmt(self._axes(), from_steps),
+                    "Diff:   " + fmt(self._axes(), from_steps - native)]
             self._block("sync", self.now, n, then=detail)
             return False
         self.out.append(self._position_line())

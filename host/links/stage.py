@@ -4,8 +4,11 @@ Every line goes out as `N<n> <cmd>*<checksum>` and stays in the history until it
 (ADVANCED_OK) arrives. `Resend: r` sends r and everything after it again; repeated requests
 for the same r are ignored until r has been acknowledged (the lines already on the wire
 produce them). Marlin silently drops a line number it has already seen, so after a timeout
-the client never re-sends blindly: it probes with the next line number (a harmless M105),
-and Marlin's answer (an ok, or a Resend) tells which lines were really executed.
+the client never re-sends blindly: it probes with the next line number (M114, harmless, and
+its `ok N` carries the number, where M105's `ok T:0` carries none), and Marlin's answer (an
+`ok N`, or a Resend) tells which lines were really executed. Text printed before an `ok N`
+belongs to the lines that ok acknowledges, so a lost ok loses no reply. A plain `ok` (an
+unnumbered line's, or one Marlin adds after an error) never acknowledges a numbered line.
 """
 
 from __future__ import annotations
@@ -22,6 +25,10 @@ RESEND = re.compile(r"^(?:Resend|rs):?\s*N?(\d+)", re.I)
 POSITION = re.compile(r"([XYZA]):\s*(-?\d+(?:\.\d+)?)")
 RX_BUFFER = 127      # bytes Marlin's 128-byte ring takes before the oldest line is read
 LONG = ("G28", "M400", "G4", "G29")
+MAX_LINE = 95        # MAX_CMD_SIZE 96 less its terminator: Marlin cuts longer lines
+PROBE = "M114"       # numbered, harmless, answered with `ok N`
+BOOT_S = 3.0         # a board reset by the port opening: bootloader + boot banner
+M110_RETRY_S = 1.0   # M110 again after this long without its ok
 
 
 class StageError(LinkError):
@@ -125,10 +132,11 @@ class StageClient:
             if m:
                 n = int(m.group(1))
                 if n in self.unacked:
-                    for k in [k for k in self.unacked if k <= n]:  # in order: all up to n
+                    # in order: all up to n; an earlier line whose ok was lost printed its
+                    # text before this ok too, so every line acknowledged here keeps it
+                    for k in [k for k in self.unacked if k <= n]:
                         self.unacked.pop(k)
-                        self.replies.setdefault(k, [])
-                    self.replies[n] = self.pending_text
+                        self.replies[k] = list(self.pending_text)
                     self.pending_text = []
                 if self.ignore_resend_of is not None and n >= self.ignore_resend_of:
                     self.ignore_resend_of = None
@@ -187,10 +195,23 @@ class StageClient:
         self.next_n = 1
         self.ignore_resend_of = None
         body = "N0 M110 N0"
-        self._write(f"{body}*{checksum(body)}\n")
-        self.unacked[0] = f"{body}*{checksum(body)}\n"
+        line = f"{body}*{checksum(body)}\n"
+        self.unacked[0] = line
         try:
-            self._wait_acked(0, self.timeout_s)
+            # opening the port may reset the board (DTR: bootloader ~1-2 s, then its banner);
+            # an M110 sent meanwhile is lost, so it goes again until acknowledged
+            end = time.monotonic() + self.timeout_s + BOOT_S
+            while True:
+                self._write(line)
+                try:
+                    self._pump(min(time.monotonic() + M110_RETRY_S, end),
+                               lambda: 0 not in self.unacked)
+                    break
+                except TimeoutError:
+                    if time.monotonic() >= end:
+                        raise StageError(f"the stage on {self.port_name} does not answer "
+                                         f"(M110): check the cable and that it runs the "
+                                         f"dmdsm Marlin (docs/marlin.md)") from None
         except StageError:
             if self._is_sensor_board():
                 raise StageError(f"{self.port_name} is the dmdsm sensor board, not the stage "
@@ -235,7 +256,7 @@ class StageClient:
         self.ignore_resend_of = None  # a Resend answering the probe is never stale
         n = self.next_n
         self.next_n += 1
-        self._send_line(n, "M105")
+        self._send_line(n, PROBE)
 
     def send(self, cmd: str, timeout_s: float | None = None, wait: bool = True) -> list[str]:
         """Send one command; with wait, return the lines it printed before its ok."""
@@ -244,6 +265,11 @@ class StageClient:
                     and self._bytes_in_flight() + len(cmd) + 12 <= RX_BUFFER,
                     self.timeout_s, "no room in the command buffer")
         n = self.next_n  # numbered only now: probes while waiting take numbers too
+        body = f"N{n} {cmd}"
+        size = len(f"{body}*{checksum(body)}")
+        if size > MAX_LINE:  # Marlin would cut it and lose the checksum: refused unsent
+            raise StageError(f"G-code line too long for Marlin ({size} > {MAX_LINE} "
+                             f"characters): {cmd[:40]}...; split it")
         self.next_n += 1
         self._send_line(n, cmd)
         if not wait:

@@ -135,3 +135,66 @@ def test_disconnect_mid_move_is_a_clear_error_not_a_hang(emulator):
                 st.move(a=5, feed_mm_min=5400, wait=True)
             st.close()
     assert time.monotonic() - t0 < 60
+
+
+def _until(cond, timeout_s=10.0):
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+    assert cond()
+
+
+def test_a_lost_ok_is_proven_by_a_numbered_probe_and_keeps_the_reply(emulator):
+    emu = emulator(speed=5.0)
+    st = StageClient(emu.stage, timeout_s=0.5)
+    st.send("G92 X12.5 Y3 Z4 A7")
+    marlin = emu.sim.stage
+    marlin.faults.lost_ok = 1.0  # the ok of the next line is lost
+    n = st.next_n
+    st.send("M114", wait=False)
+    _until(lambda: marlin.executed[-1] == (n, "M114"))
+    marlin.faults.lost_ok = 0.0
+    st.drain(timeout_s=0.5)  # silent: a probe goes out and its `ok N` acknowledges n too
+    assert st.stats.probes == 1 and n not in st.unacked
+    report = [x for x in st.replies[n] if x.startswith("X:")]
+    assert report and report[0].startswith("X:12.50 Y:3.00 Z:4.00 A:7.00")
+    assert [c for k, c in marlin.executed if k is not None and k >= n] == ["M114", "M114"]
+    st.close()
+
+
+def test_an_over_long_line_is_refused_before_it_is_sent(emulator):
+    emu = emulator()
+    st = StageClient(emu.stage)
+    before = len(emu.sim.stage.executed)
+    with pytest.raises(StageError, match="too long for Marlin"):
+        st.send("M117 " + "x" * 100)
+    assert len(emu.sim.stage.executed) == before
+    assert st.where()  # and the link goes on
+    st.close()
+
+
+def test_an_extra_plain_ok_acknowledges_no_numbered_line(emulator):
+    emu = emulator(speed=1.0)
+    st = StageClient(emu.stage)
+    n = st.next_n
+    st.send("G4 P400", wait=False)  # holds its ok for 0.4 s
+    _until(lambda: emu.sim.stage.executed[-1] == (n, "G4 P400"))
+    emu.sim.stage.out.append("ok")  # as Marlin adds after an error in a burst
+    time.sleep(0.1)
+    for line in st._read_lines():
+        st._handle(line)
+    assert n in st.unacked
+    st.drain(timeout_s=5)
+    assert n not in st.unacked
+    st.close()
+
+
+def test_connect_survives_the_board_resetting_when_the_port_opens(emulator):
+    emu = emulator(speed=1.0)
+    marlin = emu.sim.stage
+    marlin.reset(marlin.now, boot_s=1.5)  # as DTR does: the first M110 goes to the bootloader
+    t0 = time.monotonic()
+    st = StageClient(emu.stage)
+    assert time.monotonic() - t0 > 1.0  # it waited for the board, it did not fail
+    assert st.home()["Z"] == 5.0
+    st.close()

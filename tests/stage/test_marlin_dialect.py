@@ -103,3 +103,75 @@ def test_m154_auto_reports_without_ok(stage):
     reports = [x for x in lines if x.startswith("X:")]
     assert len(reports) >= 2 and not any(x.startswith("ok") for x in lines)
     stage.send("M154 S0")
+
+
+# What a real Marlin built from our patch does, as seen in simavr (issue 20): the emulator
+# must do the same, since the host's recovery paths depend on it.
+
+def test_a_numbered_m105_answers_ok_without_line_number(stage):
+    stage.raw(stage.numbered("M105", n=stage.n + 1))
+    stage.n += 1
+    replies = stage.lines(0.5)
+    assert "ok T:0" in [x.split(" /")[0] for x in replies], replies
+    assert not any(OK.match(x) for x in replies)  # proves nothing about line numbers
+
+
+def test_idle_ok_counts_the_current_command_in_b(stage):
+    stage.send("M400", timeout=60)
+    m = OK.match(stage.send("G90")[-1])
+    assert int(m.group(3)) == LIMITS.bufsize - 1
+
+
+def test_homing_leaves_z_raised_and_counts_native(stage):
+    report = [x for x in stage.send("G28", timeout=60) if x.startswith("X:")][-1]
+    assert _pos(report)["Z"] == 5.0 and _pos(report)["X"] == LIMITS.min_pos[0]
+    counts = dict(re.findall(r"([XYZA]):(-?\d+)", report.split("Count")[1]))
+    assert int(counts["X"]) == round(LIMITS.min_pos[0] * LIMITS.steps_per_unit[0])
+    stage.send("G90")
+    stage.send("G1 X20 F6000")
+    stage.send("M400", timeout=60)
+    counts = dict(re.findall(r"([XYZA]):(-?\d+)", stage.send("M114")[0].split("Count")[1]))
+    assert int(counts["X"]) == 20 * LIMITS.steps_per_unit[0]
+
+
+def test_soft_endstops_stop_at_the_max_position(stage):
+    stage.send("G28 X", timeout=60)
+    stage.send("G90")
+    stage.send(f"G1 X{LIMITS.max_pos[0] + 90:.0f} F12000")
+    stage.send("M400", timeout=120)
+    assert _pos(stage.send("M114")[0])["X"] == LIMITS.max_pos[0]
+    stage.send("G1 X20 F12000")
+    stage.send("M400", timeout=120)
+
+
+def test_m114_r_has_counts_and_m114_d_prints_a_detail_block(stage):
+    assert " Count " in stage.send("M114 R")[0]
+    lines = stage.send("M114 D", timeout=60)
+    assert lines[0].startswith("X:") and " Count " in lines[0] and lines[1] == ""
+    detail = [x for x in lines[2:] if not x.startswith("ok")]
+    assert detail and all(re.search(r":\s*-?\d+\.\d{3}\b", x) for x in detail
+                          if not x.startswith("Stepper"))
+
+
+def test_g92_reports_the_new_position_before_its_ok(stage):
+    lines = stage.send("G92 A0")
+    assert len(lines) == 2 and lines[0].startswith("X:") and _pos(lines[0])["A"] == 0.0
+
+
+def test_lower_case_gcode_is_unknown_and_does_not_move(stage):
+    stage.send("G92 A0")
+    lines = stage.send("g1 a15")
+    assert lines[0] == 'echo:Unknown command: "g1 a15"'
+    assert _pos(stage.send("M114")[0])["A"] == 0.0
+
+
+def test_an_over_long_numbered_line_loses_its_checksum(stage):
+    stage.send("G90")
+    last = stage.n
+    stage.raw(stage.numbered("M117 " + "x" * 120, n=last + 1))
+    replies = stage.until_ok()
+    assert replies[:2] == [f"Error:No Checksum with line number, Last Line: {last}",
+                           f"Resend: {last + 1}"]
+    stage.raw(stage.numbered("G90", n=last + 1))  # the resend, short this time
+    assert OK.match(stage.until_ok()[-1])
+    stage.n = last + 1

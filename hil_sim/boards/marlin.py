@@ -29,6 +29,10 @@ class StageFaults:
     busy_extra_s: float = 0.0     # blocking commands (G28, M400, G4) take this much longer
 
 
+READ_LAG_BYTES = 12  # bytes that arrive (at 250 kbaud, ~0.5 ms) before the main loop reads a
+# finished line: a line error then flushes them, and the rest of a burst is read from mid-line
+
+
 def checksum(line: str) -> int:
     """Marlin's checksum: XOR of every byte before '*'."""
     c = 0
@@ -93,12 +97,18 @@ class MarlinEmulator(GcodeMixin):
         if now < self.booting_until:
             return  # the bootloader is not Marlin: the bytes are gone
         self._run(now)
+        behind = None  # bytes arrived since the oldest unread newline
         for b in data:
             self._emergency(b, now)
-            if len(self.rx) >= self.limits.rx_buffer_size:
+            if len(self.rx) >= self.limits.rx_buffer_size or (behind or 0) >= READ_LAG_BYTES:
                 self._run(now)  # the main loop reads the ring while bytes keep arriving
+                behind = None
             if len(self.rx) < self.limits.rx_buffer_size:
                 self.rx.append(b)  # else lost, as on the ATmega2560 (command slots full)
+            if behind is not None:
+                behind += 1
+            elif b in (10, 13):
+                behind = 0
         self._run(now)
 
     def step(self, now: float) -> bytes:

@@ -8,10 +8,12 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMPS := build/stamps
 HOSTBUILD := build/host
+AVRBUILD := build/avr
 FUZZ_SECONDS ?= 20
 
 APT_PACKAGES := gcc make clang libclang-rt-14-dev cppcheck gcc-arm-none-eabi \
-  libnewlib-arm-none-eabi qemu-system-arm
+  libnewlib-arm-none-eabi qemu-system-arm simavr libsimavr-dev libelf-dev pkg-config \
+  gcc-avr avr-libc
 CFLAGS_HOST := -std=c11 -Wall -Wextra -Werror -pedantic -g -O1
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 PROTO_C := protocol/c/dmdsm_frame.c protocol/c/dmdsm_spec.c
@@ -19,13 +21,14 @@ PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
 CORE_C := $(wildcard firmware/stm32/core/*.c)
 CORE_H := $(wildcard firmware/stm32/core/*.h)
 
-.PHONY: all deps venv build firmware test test-c fuzz lint gen-check gen bench demo clean
+.PHONY: all deps venv build firmware avr test test-c fuzz lint gen-check gen bench demo clean
 
 all: build
 
 ## ---------------------------------------------------------------- install
-# apt-get update runs once, and only if a package is missing.
-$(STAMPS)/apt:
+# apt-get update runs once, and only if a package is missing (checked again when this
+# Makefile changes, so a package added here is installed on an existing checkout too).
+$(STAMPS)/apt: Makefile
 	@mkdir -p $(STAMPS)
 	@missing=""; for p in $(APT_PACKAGES); do \
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "ok installed" || missing="$$missing $$p"; \
@@ -74,7 +77,18 @@ firmware: $(STAMPS)/apt
 	$(MAKE) -C firmware/stm32 BOARD=qemu_an500
 	$(MAKE) -C firmware/stm32 BOARD=pc
 
-build: deps firmware $(HOSTBUILD)/test_frame $(HOSTBUILD)/test_core $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
+# the stage board's firmware under simavr (docs/marlin.md), and an AVR program to test it with
+$(AVRBUILD)/stage_harness: hil_sim/avr/stage_harness.c | $(STAMPS)/apt
+	@mkdir -p $(AVRBUILD)
+	gcc -std=gnu11 -Wall -Wextra -Werror -O2 $< $$(pkg-config --cflags --libs simavr) -lutil -o $@
+
+$(AVRBUILD)/uart_pins_test.elf: hil_sim/avr/uart_pins_test.c | $(STAMPS)/apt
+	@mkdir -p $(AVRBUILD)
+	avr-gcc -mmcu=atmega2560 -std=gnu11 -Os -DF_CPU=16000000UL -Wall -Wextra -Werror $< -o $@
+
+avr: $(AVRBUILD)/stage_harness $(AVRBUILD)/uart_pins_test.elf
+
+build: deps firmware avr $(HOSTBUILD)/test_frame $(HOSTBUILD)/test_core $(HOSTBUILD)/proto_tool $(HOSTBUILD)/fuzz_decoder
 
 ## ---------------------------------------------------------------- checks
 gen: deps
@@ -103,6 +117,8 @@ lint: deps
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
 	  --std=c11 --inline-suppr --suppress=missingIncludeSystem -Iprotocol/c -Ifirmware/stm32/core \
 	  -Ifirmware/stm32/board/common -Ifirmware/stm32/board/nucleo_h743zi firmware/stm32/board
+	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
+	  --std=c11 --suppress=missingIncludeSystem hil_sim/avr/stage_harness.c
 
 test-c: build
 	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_frame protocol/vectors/golden.txt

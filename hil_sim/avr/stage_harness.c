@@ -1,0 +1,308 @@
+/* Runs an AVR firmware ELF (the stage board's Marlin) under simavr for the SIL: UART0 on a
+ * pseudo-terminal, step/dir pins counted per axis, endstop pins driven from the counted
+ * position, simulated time and counts reported on stdout.
+ *
+ * usage: stage_harness FIRMWARE.elf [--mcu atmega2560] [--freq 16000000] [--speed 1.0]
+ *            [--link PATH] [--axis NAME:STEP:DIR:ENDSTOP:TRIGGER ...]
+ *   STEP, DIR, ENDSTOP are pins as port letter + bit (F0, E5); ENDSTOP may be '-'; DIR
+ *   written !F1 counts DIR low as positive (Marlin's INVERT_x_DIR).
+ *   TRIGGER: the count at or below which the min endstop reads triggered (high, as the
+ *   Chiron's mechanical switches with ENDSTOP_INVERTING false).
+ * stdout: "pty PATH" once, then "t SECONDS C1 C2 ..." whenever a count changed (at most
+ * every 1 ms of simulated time) and "exit STATE" when the firmware stops.
+ * stdin: "quit" ends the run.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+
+#define MAX_AXES 6
+
+typedef struct axis_t {
+	char name[8];
+	char step_port, dir_port, end_port;
+	int step_bit, dir_bit, end_bit;
+	long trigger;
+	long count;
+	int dir_level, step_level, end_level, dir_inverted;
+	avr_irq_t *end_irq;
+} axis_t;
+
+static axis_t axes[MAX_AXES];
+static int n_axes;
+static avr_t *avr;
+static int pty_master = -1;
+static int uart_xon = 1;
+static int counts_changed;
+static volatile sig_atomic_t stop_requested;
+
+static int parse_pin(const char *s, char *port, int *bit)
+{
+	if (s[0] == '-') {
+		*port = 0;
+		*bit = -1;
+		return 0;
+	}
+	if (s[0] < 'A' || s[0] > 'L' || s[1] < '0' || s[1] > '7' || s[2] != 0)
+		return -1;
+	*port = s[0];
+	*bit = s[1] - '0';
+	return 0;
+}
+
+static int parse_axis(char *spec, axis_t *a)
+{
+	char *f[5];
+	int n = 0;
+	for (char *tok = strtok(spec, ":"); tok && n < 5; tok = strtok(NULL, ":"))
+		f[n++] = tok;
+	if (n != 5 || strlen(f[0]) >= sizeof(a->name))
+		return -1;
+	snprintf(a->name, sizeof(a->name), "%s", f[0]);
+	a->dir_inverted = f[2][0] == '!';
+	if (parse_pin(f[1], &a->step_port, &a->step_bit) || a->step_bit < 0 ||
+	    parse_pin(f[2] + a->dir_inverted, &a->dir_port, &a->dir_bit) || a->dir_bit < 0 ||
+	    parse_pin(f[3], &a->end_port, &a->end_bit))
+		return -1;
+	a->trigger = strtol(f[4], NULL, 10);
+	return 0;
+}
+
+/* the endstop pin follows the counted position */
+static void drive_endstop(axis_t *a)
+{
+	if (!a->end_irq)
+		return;
+	int level = a->count <= a->trigger;
+	if (level != a->end_level) {
+		a->end_level = level;
+		avr_raise_irq(a->end_irq, level);
+	}
+}
+
+static void on_step(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	axis_t *a = param;
+	int level = value & 1;
+	if (level && !a->step_level) {  /* rising edge: one step (DIR high = positive) */
+		a->count += a->dir_level != a->dir_inverted ? 1 : -1;
+		counts_changed = 1;
+		drive_endstop(a);
+	}
+	a->step_level = level;
+}
+
+static void on_dir(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	((axis_t *)param)->dir_level = value & 1;
+}
+
+static void on_uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	(void)param;
+	uint8_t b = value;
+	if (pty_master >= 0 && write(pty_master, &b, 1) < 0 && errno != EAGAIN)
+		pty_master = -1;
+}
+
+static void on_xon(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	(void)value;
+	(void)param;
+	uart_xon = 1;
+}
+
+static void on_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	(void)value;
+	(void)param;
+	uart_xon = 0;
+}
+
+static void on_signal(int sig)
+{
+	(void)sig;
+	stop_requested = 1;
+}
+
+static double wall_s(void)
+{
+	struct timespec ts;
+	clock_gettime(CLOCK_MONOTONIC, &ts);
+	return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void report(double t)
+{
+	printf("t %.6f", t);
+	for (int i = 0; i < n_axes; i++)
+		printf(" %ld", axes[i].count);
+	printf("\n");
+	fflush(stdout);
+}
+
+static int open_pty(const char *link)
+{
+	int slave;
+	char name[256];
+	struct termios tio;
+	if (openpty(&pty_master, &slave, name, NULL, NULL) < 0)
+		return -1;
+	cfmakeraw(&tio);
+	tcsetattr(slave, TCSANOW, &tio);
+	/* keep the slave open: a host closing the port must not hang the master up */
+	fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
+	if (link) {
+		unlink(link);
+		if (symlink(name, link) < 0)
+			return -1;
+	}
+	printf("pty %s\n", name);
+	fflush(stdout);
+	return 0;
+}
+
+static void wire(void)
+{
+	uint32_t flags = 0;
+	avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+	flags &= ~(AVR_UART_FLAG_POLL_SLEEP | AVR_UART_FLAG_STDIO);
+	avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
+				on_uart_out, NULL);
+	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
+				on_xon, NULL);
+	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
+				on_xoff, NULL);
+	for (int i = 0; i < n_axes; i++) {
+		axis_t *a = &axes[i];
+		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(a->step_port),
+						      a->step_bit), on_step, a);
+		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(a->dir_port),
+						      a->dir_bit), on_dir, a);
+		if (a->end_bit >= 0) {
+			a->end_irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(a->end_port),
+						   a->end_bit);
+			a->end_level = -1;
+			drive_endstop(a);
+		}
+	}
+}
+
+int main(int argc, char **argv)
+{
+	const char *elf = NULL, *mcu = "atmega2560", *link = NULL;
+	unsigned long freq = 16000000;
+	double speed = 1.0;
+	for (int i = 1; i < argc; i++) {
+		if (!strcmp(argv[i], "--mcu") && i + 1 < argc)
+			mcu = argv[++i];
+		else if (!strcmp(argv[i], "--freq") && i + 1 < argc)
+			freq = strtoul(argv[++i], NULL, 10);
+		else if (!strcmp(argv[i], "--speed") && i + 1 < argc)
+			speed = atof(argv[++i]);
+		else if (!strcmp(argv[i], "--link") && i + 1 < argc)
+			link = argv[++i];
+		else if (!strcmp(argv[i], "--axis") && i + 1 < argc && n_axes < MAX_AXES) {
+			if (parse_axis(argv[++i], &axes[n_axes++])) {
+				fprintf(stderr, "stage_harness: bad --axis %s (NAME:STEP:DIR:END:TRIGGER)\n",
+					argv[i]);
+				return 2;
+			}
+		} else if (argv[i][0] != '-' && !elf)
+			elf = argv[i];
+		else {
+			fprintf(stderr, "stage_harness: unknown argument %s\n", argv[i]);
+			return 2;
+		}
+	}
+	if (!elf) {
+		fprintf(stderr, "usage: stage_harness FIRMWARE.elf [--mcu M] [--freq HZ] "
+			"[--speed X] [--link PATH] [--axis NAME:STEP:DIR:END:TRIGGER ...]\n");
+		return 2;
+	}
+	elf_firmware_t fw;
+	memset(&fw, 0, sizeof(fw));
+	if (elf_read_firmware(elf, &fw) != 0) {
+		fprintf(stderr, "stage_harness: cannot read %s as an AVR ELF\n", elf);
+		return 2;
+	}
+	if (!fw.mmcu[0])
+		snprintf(fw.mmcu, sizeof(fw.mmcu), "%s", mcu);
+	if (!fw.frequency)
+		fw.frequency = freq;
+	avr = avr_make_mcu_by_name(fw.mmcu);
+	if (!avr) {
+		fprintf(stderr, "stage_harness: simavr has no MCU %s\n", fw.mmcu);
+		return 2;
+	}
+	avr_init(avr);
+	avr->log = LOG_ERROR;  /* simavr's own messages would mix with the report lines */
+	avr_load_firmware(avr, &fw);
+	if (open_pty(link) < 0) {
+		perror("stage_harness: pty");
+		return 2;
+	}
+	wire();
+	signal(SIGINT, on_signal);
+	signal(SIGTERM, on_signal);
+	fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+
+	double wall0 = wall_s(), last_report = -1.0;
+	int state = cpu_Running;
+	avr_irq_t *uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+	uint8_t inbuf[256];
+	size_t in_len = 0, in_pos = 0;
+	char cmd[64];
+	while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+		for (int k = 0; k < 2000 && state != cpu_Done && state != cpu_Crashed; k++)
+			state = avr_run(avr);
+		double t = (double)avr->cycle / avr->frequency;
+		if (in_pos == in_len && pty_master >= 0) {  /* bytes from the host */
+			ssize_t got = read(pty_master, inbuf, sizeof(inbuf));
+			in_len = got > 0 ? (size_t)got : 0;
+			in_pos = 0;
+		}
+		while (in_pos < in_len && uart_xon)
+			avr_raise_irq(uart_in, inbuf[in_pos++]);
+		if (counts_changed && t - last_report >= 1e-3) {
+			report(t);
+			last_report = t;
+			counts_changed = 0;
+		}
+		ssize_t c = read(0, cmd, sizeof(cmd) - 1);
+		if (c > 0 && !strncmp(cmd, "quit", 4))
+			break;
+		if (speed > 0) {  /* no faster than `speed` x real time */
+			double ahead = t / speed - (wall_s() - wall0);
+			if (ahead > 0.002)
+				usleep((useconds_t)(ahead * 1e6));
+		}
+	}
+	report((double)avr->cycle / avr->frequency);
+	printf("exit %d\n", state);
+	fflush(stdout);
+	if (link)
+		unlink(link);
+	avr_terminate(avr);
+	return 0;
+}

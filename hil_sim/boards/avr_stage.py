@@ -1,0 +1,125 @@
+"""A stage board's real firmware (an AVR ELF, e.g. Marlin built from our patch) under simavr,
+through build/avr/stage_harness: UART0 on a pseudo-terminal the host opens like a board's
+port, the step counts of each axis followed so the physics knows where the stage is."""
+
+from __future__ import annotations
+
+import collections
+import os
+import subprocess
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+HARNESS = Path(os.environ.get("DMDSM_STAGE_HARNESS", REPO / "build/avr/stage_harness"))
+
+
+class AvrStageError(RuntimeError):
+    """The harness or the firmware could not be started; str() says what to do."""
+
+
+@dataclass(frozen=True)
+class AxisPins:
+    """One stepper axis: pins as port letter + bit ('F0'), endstop '-' if none; dir_inverted
+    as Marlin's INVERT_x_DIR; the endstop reads triggered at counts <= trigger_steps."""
+
+    name: str
+    step: str
+    dir: str
+    endstop: str = "-"
+    trigger_steps: int = 0
+    dir_inverted: bool = False
+
+    def spec(self) -> str:
+        """The harness's --axis argument."""
+        return (f"{self.name}:{self.step}:{'!' if self.dir_inverted else ''}{self.dir}:"
+                f"{self.endstop}:{self.trigger_steps}")
+
+
+# RAMPS 1.4 (the Chiron's Trigorilla board): X, Y, Z and E0 (the turntable, axis A)
+RAMPS = (AxisPins("X", "F0", "F1", "E5"), AxisPins("Y", "F6", "F7", "J1"),
+         AxisPins("Z", "L3", "L1", "D3"), AxisPins("A", "A4", "A6", "-"))
+
+
+class AvrStage:
+    """A running harness: `port` for the host, `counts` (steps per axis) and `time_s`
+    (simulated seconds) as last reported; close() stops it."""
+
+    def __init__(self, elf: Path, axes: tuple[AxisPins, ...] = RAMPS, speed: float = 1.0,
+                 harness: Path = HARNESS, start_timeout_s: float = 10.0) -> None:
+        if not Path(harness).is_file():
+            raise AvrStageError(f"{harness} is not built: run `make avr` (needs simavr, "
+                                f"libsimavr-dev, gcc-avr)")
+        if not Path(elf).is_file():
+            raise AvrStageError(f"{elf}: no such firmware file")
+        self.axes = axes
+        self.counts = np.zeros(len(axes), np.int64)
+        self.time_s = 0.0
+        self.exit_state: int | None = None
+        self.lock = threading.Lock()
+        args = [str(harness), str(elf), "--speed", str(speed)]
+        for a in axes:
+            args += ["--axis", a.spec()]
+        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True)
+        self.port = self._wait_for_pty(start_timeout_s)
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+        self.errors: collections.deque[str] = collections.deque(maxlen=20)  # simavr's stderr
+        threading.Thread(target=lambda: self.errors.extend(self.proc.stderr),
+                         daemon=True).start()  # drained, or a chatty run would block on it
+
+    def _wait_for_pty(self, timeout_s: float) -> str:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            line = self.proc.stdout.readline()
+            if not line:  # the harness ended before its pty was up
+                err = self.proc.stderr.read().strip().splitlines()
+                self.proc.wait(5)
+                self._close_pipes()
+                raise AvrStageError((err or ["stage_harness ended at start"])[-1])
+            if line.startswith("pty "):
+                return line.split(None, 1)[1].strip()
+        self.proc.kill()
+        self.proc.wait(5)
+        self._close_pipes()
+        raise AvrStageError(f"stage_harness gave no pty within {timeout_s:g} s")
+
+    def _close_pipes(self) -> None:
+        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            words = line.split()
+            if words[:1] == ["t"] and len(words) == 2 + len(self.axes):
+                with self.lock:
+                    self.time_s = float(words[1])
+                    self.counts = np.array([int(w) for w in words[2:]], np.int64)
+            elif words[:1] == ["exit"]:
+                self.exit_state = int(words[1])
+
+    def positions(self, steps_per_unit: np.ndarray) -> np.ndarray:
+        """Distance of each axis from its endstop trigger (mm, deg): the raw machine frame
+        the physics uses (0 at the endstop)."""
+        trig = np.array([a.trigger_steps for a in self.axes])
+        with self.lock:
+            return (self.counts - trig) / np.asarray(steps_per_unit, float)
+
+    def close(self) -> None:
+        """Stop the firmware and the harness."""
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write("quit\n")
+                self.proc.stdin.flush()
+                self.proc.wait(5)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait(5)
+        self.reader.join(2)
+        self._close_pipes()

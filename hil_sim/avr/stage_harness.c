@@ -9,7 +9,7 @@
  *   TRIGGER: the count at or below which the min endstop reads triggered (high, as the
  *   Chiron's mechanical switches with ENDSTOP_INVERTING false).
  * stdout: "pty PATH" once, then "t SECONDS C1 C2 ..." whenever a count changed (at most
- * every 1 ms of simulated time) and "exit STATE" when the firmware stops.
+ * every 1 ms of simulated time) and at least every 50 ms, and "exit STATE" at the end.
  * stdin: "quit" ends the run.
  */
 #define _GNU_SOURCE
@@ -284,7 +284,7 @@ int main(int argc, char **argv)
 		}
 		while (in_pos < in_len && uart_xon)
 			avr_raise_irq(uart_in, inbuf[in_pos++]);
-		if (counts_changed && t - last_report >= 1e-3) {
+		if ((counts_changed && t - last_report >= 1e-3) || t - last_report >= 0.05) {
 			report(t);
 			last_report = t;
 			counts_changed = 0;

@@ -15,6 +15,7 @@ import io
 import json
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -180,8 +181,9 @@ def read_model(path: Path) -> tuple[FusedModel, dict]:
         return _rebuild(a, prov, path), prov
     except ClassifyError:
         raise
-    except (OSError, zipfile.BadZipFile, KeyError, TypeError, ValueError, IndexError,
-            EOFError, AttributeError) as e:
+    except (OSError, zipfile.BadZipFile, zlib.error, KeyError, TypeError, ValueError,
+            IndexError, EOFError, AttributeError, NotImplementedError, RuntimeError,
+            OverflowError) as e:  # what damaged zip members and npy headers raise
         raise ClassifyError(f"{path} is not a readable dmdsm classifier model "
                             f"({type(e).__name__}: {one_line(str(e), 120)}); {RETRAIN}") from None
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dmdsm.host.calibration.solver import (
@@ -95,6 +95,8 @@ def test_filament_radius_is_corrected():
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31), tilt=st.floats(0.0, 0.05), turn=st.floats(60, 180),
        scale=st.floats(0.3, 3.0), x=st.floats(-50, 50), y=st.floats(-50, 50))
+# a seed whose lateral scale, from its 14 residuals alone, fell to 0.20: v was 4.2 sigma off
+@example(seed=128, tilt=0.0, turn=60.0, scale=1.0, x=0.0, y=0.0)
 def test_errors_are_within_4_sigma_of_the_reported_covariance(seed, tilt, turn, scale, x, y):
     rng = np.random.default_rng(seed)
     n = unit(N + tilt * rng.normal(size=3))

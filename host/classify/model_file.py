@@ -13,6 +13,7 @@ import datetime
 import hashlib
 import io
 import json
+import math
 import os
 import zipfile
 import zlib
@@ -158,8 +159,7 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
             version = np.lib.format.read_magic(data)
             shape, _, dtype = (np.lib.format.read_array_header_1_0 if version == (1, 0) else
                                np.lib.format.read_array_header_2_0)(data)
-            if int(np.prod(shape, dtype=np.float64)) * dtype.itemsize > \
-                    len(data.getbuffer()) - data.tell():
+            if math.prod(shape) * dtype.itemsize > len(data.getbuffer()) - data.tell():
                 raise ValueError(f"{i.filename} declares more data than it holds")
             data.seek(0)
             out[i.filename[:-4]] = np.lib.format.read_array(data, allow_pickle=False)
@@ -182,8 +182,9 @@ def read_model(path: Path) -> tuple[FusedModel, dict]:
     except ClassifyError:
         raise
     except (OSError, zipfile.BadZipFile, zlib.error, KeyError, TypeError, ValueError,
-            IndexError, EOFError, AttributeError, NotImplementedError, RuntimeError,
-            OverflowError) as e:  # what damaged zip members and npy headers raise
+            IndexError, EOFError, AttributeError,
+            NotImplementedError,  # zipfile: a compression method it does not know
+            RuntimeError) as e:   # zipfile: an encrypted member
         raise ClassifyError(f"{path} is not a readable dmdsm classifier model "
                             f"({type(e).__name__}: {one_line(str(e), 120)}); {RETRAIN}") from None
 

@@ -12,6 +12,7 @@ from ..calibration.center_points import center_points
 from ..calibration.result import result_dict, write_result
 from ..calibration.rig_file import RawWriter, drop_step, read_raw, steps_in
 from ..calibration.solver import CalibrationError, solve
+from .options import add_ports
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,10 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--step", choices=["tip", "edge"],
                      help="scan tip frames (filament horizontal) or edge frames (vertical), "
                           "appending to --data; after the edge step the data is solved")
-    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
-    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
-    p.add_argument("--config", type=Path, default=None,
-                   help="TOML file with [ports] and [calibration]")
+    add_ports(p)
     p.add_argument("--ranging", type=Path, default=Path("ranging.json"),
                    help="from dmdsm calibrate-range")
     p.add_argument("--data", type=Path, default=Path("rig.csv"),

@@ -38,22 +38,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help=f"samples per window (default {WINDOW}); a model only takes its own")
     common.add_argument("--json", action="store_true", help="machine-readable output")
 
-    t = psub.add_parser("train", parents=[common], help="fit a classifier to a database")
-    t.add_argument("--db", type=Path, required=True, help="scan database folder")
+    data = argparse.ArgumentParser(add_help=False, parents=[common])  # train, evaluate
+    data.add_argument("--db", type=Path, required=True, help="scan database folder")
+    data.add_argument("--modality", choices=list(MODALITY), default="both",
+                      help="OA and US fused (default) or one alone")
+
+    t = psub.add_parser("train", parents=[data], help="fit a classifier to a database")
     t.add_argument("--classifier", choices=["boss", "minirocket"], default="minirocket",
                    help="default minirocket (seconds to fit); boss as the paper (minutes)")
-    t.add_argument("--modality", choices=list(MODALITY), default="both",
-                   help="OA and US fused (default) or one alone")
     t.add_argument("-o", "--output", type=Path, required=True,
                    help="model file to write (numpy arrays + JSON provenance, no pickle)")
 
-    e = psub.add_parser("evaluate", parents=[common],
+    e = psub.add_parser("evaluate", parents=[data],
                         help="the paper's accuracy protocols on a database")
-    e.add_argument("--db", type=Path, required=True, help="scan database folder")
     e.add_argument("--classifiers", nargs="+", choices=["boss", "minirocket"],
                    default=["boss", "minirocket"], help="which ones (default both)")
-    e.add_argument("--modality", choices=list(MODALITY), default="both",
-                   help="OA and US fused (default) or one alone")
     e.add_argument("--trials", type=int, default=50, help="random 3:1 splits")
     e.add_argument("--boss-trials", type=int, default=10,
                    help="random splits for BOSS (about 20 s per fit)")

@@ -15,6 +15,7 @@ from dmdsm.marlin_patch import load_machine
 
 from ..links.config import load_config, resolve_port
 from .errors import check_output
+from .options import CONFIG_HELP, SENSOR_HELP, STAGE_HELP
 
 ROLES = {  # USB VID:PID -> guessed role
     "0483:374b": "sensor (NUCLEO-H743ZI ST-LINK/V2-1 VCP)",
@@ -36,15 +37,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_ports)
 
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--config", type=Path, default=None, help="TOML file with [ports]")
+    common.add_argument("--config", type=Path, default=None, help=CONFIG_HELP)
     common.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("info", parents=[common], help="identify the sensor board")
-    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--sensor", help=SENSOR_HELP)
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("acquire", parents=[common], help="record shots into an HDF5 file")
-    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
+    p.add_argument("--sensor", help=SENSOR_HELP)
     p.add_argument("--shots", type=int, required=True, help="waveforms to record")
     p.add_argument("--average", type=int, default=None, help="shots averaged on board")
     p.add_argument("--samples", type=int, default=None, help="samples per shot")
@@ -56,7 +57,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("stage", help="home, move, where, stop")
     psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     staged = argparse.ArgumentParser(add_help=False, parents=[common])
-    staged.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
+    staged.add_argument("--stage", help=STAGE_HELP)
     for action, text in (("home", "home X, Y, Z (G28)"), ("where", "the position (M114)"),
                          ("stop", "stop any move at once (M410), then say where")):
         psub.add_parser(action, parents=[staged], help=text)

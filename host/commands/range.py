@@ -13,14 +13,13 @@ from ..ranging.calibrate import MODALITIES, RangingSetup, distance_std_mm, range
 from ..ranging.matched_filter import speed_of_sound_mm_s
 from ..ranging.procedure import calibrate_range
 from .errors import check_output
+from .options import add_ports
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Register calibrate-range and range."""
     p = sub.add_parser("calibrate-range", help="fit t0 and c with the stage as a ruler")
-    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
-    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
-    p.add_argument("--config", type=Path, default=None, help="TOML file with [ports]")
+    add_ports(p)
     p.add_argument("-x", type=float, required=True, help="start X (mm)")
     p.add_argument("-y", type=float, required=True, help="start Y (mm), closest to the target")
     p.add_argument("-z", type=float, required=True, help="start Z (mm)")

@@ -17,6 +17,7 @@ from ..scan.plan import PlanError, load_plan
 from ..scan.scanfile import ScanFileError, ScanWriter
 from ..scan.session import checked_points, finished_scan, run_plan
 from .errors import CliError
+from .options import add_ports
 
 log = logging.getLogger("dmdsm.scan")
 
@@ -24,10 +25,7 @@ log = logging.getLogger("dmdsm.scan")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `scan`."""
     p = sub.add_parser("scan", help="scan an object into the database (step and shoot)")
-    p.add_argument("--sensor", help="sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)")
-    p.add_argument("--stage", help="stage port (or DMDSM_STAGE_PORT, dmdsm.toml)")
-    p.add_argument("--config", type=Path, default=None,
-                   help="TOML file with [ports] and [calibration]")
+    add_ports(p)
     p.add_argument("--calibration", type=Path, default=Path("calibration.toml"),
                    help="scanner calibration from `dmdsm calibrate` (default ./calibration.toml)")
     p.add_argument("--ranging", type=Path, default=Path("ranging.json"),

@@ -101,9 +101,11 @@ class StageClient:
         except (OSError, ValueError) as e:
             raise StageError(f"lost the stage on {self.port_name}: {e}") from None
 
-    def _send_line(self, n: int, cmd: str) -> None:
-        body = f"N{n} {cmd}"
-        line = f"{body}*{checksum(body)}\n"
+    def _send_line(self, n: int, cmd: str, line: str | None = None) -> None:
+        """Send `N<n> cmd*<checksum>` (line: that text, already made) and keep it for resends."""
+        if line is None:
+            body = f"N{n} {cmd}"
+            line = f"{body}*{checksum(body)}\n"
         self.unacked[n] = line
         self._write(line)
         self.stats.lines += 1
@@ -266,12 +268,12 @@ class StageClient:
                     self.timeout_s, "no room in the command buffer")
         n = self.next_n  # numbered only now: probes while waiting take numbers too
         body = f"N{n} {cmd}"
-        size = len(f"{body}*{checksum(body)}")
-        if size > MAX_LINE:  # Marlin would cut it and lose the checksum: refused unsent
-            raise StageError(f"G-code line too long for Marlin ({size} > {MAX_LINE} "
+        line = f"{body}*{checksum(body)}\n"
+        if len(line) - 1 > MAX_LINE:  # Marlin would cut it and lose the checksum: unsent
+            raise StageError(f"G-code line too long for Marlin ({len(line) - 1} > {MAX_LINE} "
                              f"characters): {cmd[:40]}...; split it")
         self.next_n += 1
-        self._send_line(n, cmd)
+        self._send_line(n, cmd, line)
         if not wait:
             return []
         long_cmd = cmd.split()[0].upper() in LONG

@@ -184,3 +184,33 @@ def test_predict_loads_no_model_it_was_not_given(tmp_path, monkeypatch, capsys):
         main(["classify", "predict", "--scan", "x.h5"])
     assert e.value.code == 2 and "--model" in capsys.readouterr().err
     assert not (tmp_path / "pwned").exists()
+
+
+def _one_member_zip(path, data, method=None, encrypted=False):
+    """A zip holding prior.npy, its header edited: compression method, encryption flag."""
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("prior.npy", data)
+    raw = bytearray(path.read_bytes())
+    local, central = raw.find(b"PK\x03\x04"), raw.find(b"PK\x01\x02")
+    if method is not None:
+        raw[local + 8:local + 10] = raw[central + 10:central + 12] = method.to_bytes(2, "little")
+    if encrypted:
+        raw[local + 6] |= 1
+        raw[central + 8] |= 1
+    path.write_bytes(bytes(raw))
+
+
+@pytest.mark.parametrize("case", ["unknown_compression", "encrypted", "astronomic_shape"])
+def test_zip_and_header_oddities_are_one_clear_error(tmp_path, case):
+    path = tmp_path / "odd.model"
+    if case == "astronomic_shape":  # 10^400 elements declared: refused before allocation
+        head = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            head, {"descr": "<f8", "fortran_order": False, "shape": (10 ** 200, 10 ** 200)})
+        _one_member_zip(path, head.getvalue())
+    else:  # zipfile raises NotImplementedError / RuntimeError for these
+        _one_member_zip(path, _npy(np.zeros(3)), method=99 if case == "unknown_compression"
+                        else None, encrypted=case == "encrypted")
+    with pytest.raises(ClassifyError, match="not a readable dmdsm classifier model") as e:
+        read_model(path)
+    assert str(e.value).isprintable()

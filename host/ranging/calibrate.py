@@ -177,7 +177,8 @@ class RangingSetup:
                         {m: RangeCal(**v["calibration"]) for m, v in mods.items()})
             setup.check()
             return setup
-        except (KeyError, TypeError, AttributeError, IndexError, ValueError) as e:
+        except (KeyError, TypeError, AttributeError, IndexError, ValueError,
+                OverflowError) as e:  # OverflowError: int() of an Infinity in the JSON
             msg = one_line(str(e), 300) if "ranging calibration" in str(e) else \
                 f"not a readable ranging calibration ({type(e).__name__}: {one_line(str(e), 120)})"
             raise ValueError(msg) from None

@@ -50,6 +50,7 @@ def test_the_good_file_loads():
 @given(where=st.sampled_from(PATHS), value=json_values)
 @example(where=("modalities", "oa", "calibration"), value={"\n": None})  # a key with a newline
 @example(where=("modalities",), value={"\r\x1b[2J": 1})  # terminal control codes in a key
+@example(where=("modalities", "oa", "gate"), value=[float("inf")])  # int(Infinity) overflows
 def test_any_shape_of_ranging_json_loads_or_is_one_clear_error(where, value):
     text = json.dumps(mutate(json.loads(GOOD), where, value))
     try:

@@ -77,7 +77,8 @@ def readable(out, killed):
         elif p.name == "shots.h5":
             with h5py.File(p, "r") as f:
                 assert f["/entry"].attrs["status"] in ("interrupted", "complete")
-                assert f["/entry/data/received"][:].sum() > 0
+                # every requested shot has its row; under load the signal may come first
+                assert len(f["/entry/data/received"]) == 400
         elif p.name == "ranging.json":
             json.loads(p.read_text())
         else:

@@ -8,6 +8,7 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from ..physics.objects import SCENES
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise
 from ..physics.signals import SensorModel, arrival_times_us
 from .faults import FaultyChannel, LinkFaults, parse_faults
+
+if TYPE_CHECKING:
+    from ..boards.rehost.board import RehostedSensor
 
 STEP_S = 0.001  # simulated-time resolution of the main loop
 
@@ -40,6 +44,9 @@ class SimConfig:
     faults: str = ""                       # e.g. "sensor.flip=1e-5,stage.lost_ok=0.01"
     objects: list = field(default_factory=list)  # extra SceneObjects (tests)
     frozen_noise: bool = False             # same pose + config -> same waveforms
+    # "" runs the firmware core (PC build); "nucleo" or an ELF path runs that NUCLEO ELF
+    # on the rehosted H743 (hil_sim/boards/rehost)
+    sensor_firmware: str = ""
 
 
 class Simulation:
@@ -59,10 +66,17 @@ class Simulation:
                            objects=SCENES[cfg.scene]() + list(cfg.objects))
         self.model = SensorModel(temperature_c=cfg.temperature_c)
         self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
-        self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
-                                  rep_rate_hz=cfg.rep_rate_hz,
-                                  link_bytes_per_s=cfg.sensor_link_bytes_per_s,
-                                  frozen_noise=cfg.frozen_noise)
+        self.sensor: SensorBoard | RehostedSensor
+        if cfg.sensor_firmware:
+            from ..boards.rehost.board import RehostedSensor  # unicorn only when asked
+            self.sensor = RehostedSensor(self.scene, self.pose, self.model, seed=cfg.seed,
+                                         rep_rate_hz=cfg.rep_rate_hz,
+                                         elf=cfg.sensor_firmware)
+        else:
+            self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
+                                      rep_rate_hz=cfg.rep_rate_hz,
+                                      link_bytes_per_s=cfg.sensor_link_bytes_per_s,
+                                      frozen_noise=cfg.frozen_noise)
         self.channels = {
             (name, way): FaultyChannel(link[name], seed=cfg.seed * 4 + i)
             for i, (name, way) in enumerate((n, w) for n in ("sensor", "stage")
@@ -117,7 +131,7 @@ class Simulation:
         end = self.t + dt
         while self.t < end - 1e-12:
             # fine steps only while shots sample the moving stage; moves are analytic
-            fine = self.sensor.core.armed() is not None
+            fine = self.sensor.sampling()
             step = min(STEP_S if fine else 0.05, end - self.t)
             self.t += step
             for link, board in (("stage", self.stage), ("sensor", self.sensor)):

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import serial
 
@@ -87,3 +88,38 @@ def test_injected_disconnect_drops_the_port_and_brings_it_back(tmp_path):
     finally:
         p.send_signal(signal.SIGINT)
         p.communicate(timeout=10)
+
+
+def test_sim_runs_the_nucleo_elf_on_the_rehosted_h743():
+    p, ports = start("--sensor-firmware", "nucleo")
+    try:
+        link = serial.serial_for_url(ports["sensor"], timeout=0.05)
+        link.write(encode_frame(Message("identify", seq=9)))
+        dec, got, end = FrameDecoder(), [], time.monotonic() + 5
+        while not got and time.monotonic() < end:
+            got = [m for m in dec.feed(link.read(4096)) if m.seq == 9]
+        assert got and got[0].board.startswith("NUCLEO-H743ZI rev V")
+        assert got[0].spec_hash == load_spec().hash
+    finally:
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=10)
+    assert p.returncode == 0, err
+
+
+def test_sim_names_a_firmware_file_it_cannot_run(tmp_path):
+    for path, words in ((tmp_path / "missing.elf", "no such firmware ELF"),
+                        (tmp_path, "no such firmware ELF")):
+        r = subprocess.run([sys.executable, "-m", "dmdsm.host", "sim", "--sensor-firmware",
+                            str(path)], capture_output=True, text=True, timeout=30)
+        assert r.returncode == 2 and words in r.stderr and len(r.stderr.splitlines()) == 1
+    text = tmp_path / "notes.txt"
+    text.write_text("not firmware\n")
+    an500 = Path(__file__).parents[1] / "firmware/stm32/build/qemu_an500/firmware.elf"
+    cut = tmp_path / "cut.elf"
+    cut.write_bytes(an500.read_bytes()[:60])
+    for path, words in ((text, "not a 32-bit little-endian ARM ELF"),
+                        (cut, "truncated or damaged ELF"), (an500, "not an H743 image")):
+        r = subprocess.run([sys.executable, "-m", "dmdsm.host", "sim", "--sensor-firmware",
+                            str(path)], capture_output=True, text=True, timeout=30)
+        assert r.returncode == 2 and words in r.stderr, r.stderr
+        assert len(r.stderr.splitlines()) == 1

@@ -6,6 +6,8 @@ import argparse
 import json
 import signal
 import sys
+import threading
+import time
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +27,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rep-rate", type=float, default=1000.0, help="laser shots per second")
     p.add_argument("--sensor-link", type=float, default=200_000.0,
                    help="sensor link bytes/s (default 2 Mbaud: 200000; USB FS: 1150000)")
+    p.add_argument("--sensor-firmware", default="", metavar="nucleo|ELF",
+                   help="run this NUCLEO firmware ELF ('nucleo': the one `make` builds) on "
+                        "the rehosted H743 instead of the firmware core")
     p.add_argument("--json", action="store_true", help="print the ports as one JSON line")
     p.set_defaults(func=cmd_sim)
 
@@ -45,8 +50,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     try:
         sim = Simulation(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
                                    temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
-                                   sensor_link_bytes_per_s=args.sensor_link))
-    except (ValueError, TypeError) as e:
+                                   sensor_link_bytes_per_s=args.sensor_link,
+                                   sensor_firmware=args.sensor_firmware))
+    except (ValueError, TypeError, OSError, RuntimeError) as e:
         raise CliError(str(e)) from None
     server = PtyServer(sim, speed=args.speed, link_dir=args.link_dir)
     ports = {name: p.name_for_host for name, p in server.ports.items()}
@@ -58,9 +64,21 @@ def cmd_sim(args: argparse.Namespace) -> int:
               f"scene {args.scene}, seed {args.seed}, speed x{args.speed:g}; Ctrl-C stops",
               flush=True)
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    if args.sensor_firmware:
+        threading.Thread(target=_watch_rules, args=(sim, server), daemon=True).start()
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
+    broken = getattr(sim.sensor, "violation", None)
+    if broken is not None:
+        raise CliError(f"the sensor firmware broke a hardware rule and halted: {broken}")
     print("dmdsm sim: stopped", file=sys.stderr)
     return 0
+
+
+def _watch_rules(sim: object, server: object) -> None:
+    """Stop the emulator when the rehosted firmware breaks a rule (checked every 0.2 s)."""
+    while getattr(sim.sensor, "violation", None) is None:  # type: ignore[attr-defined]
+        time.sleep(0.2)
+    server.stop()  # type: ignore[attr-defined]

@@ -1,22 +1,41 @@
-"""The device under test: a real board (DMDSM_SENSOR_PORT=/dev/ttyACM0) or the ARM build in QEMU."""
+"""The device under test: a real board (DMDSM_SENSOR_PORT=/dev/ttyACM0), else two rehosts of ours.
+
+Without a board the suite runs twice: against the ARM build in QEMU (mps2-an500, the core with
+a test-pattern ADC) and against the exact NUCLEO ELF on the rehosted H743 (unicorn with
+peripheral models, hil_sim/boards/rehost), served on a pseudo-terminal as `dmdsm sim
+--sensor-firmware nucleo` serves it. A hardware rule the NUCLEO build breaks fails the run.
+"""
 
 import os
+import threading
 
 import pytest
 from link import Link
 
 from dmdsm.sim.boards.qemu import QemuSensor
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
+
+TARGETS = ["board"] if os.environ.get("DMDSM_SENSOR_PORT") else ["qemu", "nucleo-rehost"]
 
 
-@pytest.fixture(scope="module")
-def sensor_url():
-    """Port name or URL of the sensor board; starts QEMU when none is given."""
-    url = os.environ.get("DMDSM_SENSOR_PORT")
-    if url:
-        yield url
-        return
-    with QemuSensor() as qemu:
-        yield qemu.url
+@pytest.fixture(scope="module", params=TARGETS)
+def sensor_url(request):
+    """Port name or URL of the sensor board under test."""
+    if request.param == "board":
+        yield os.environ["DMDSM_SENSOR_PORT"]
+    elif request.param == "qemu":
+        with QemuSensor() as qemu:
+            yield qemu.url
+    else:
+        sim = Simulation(SimConfig(sensor_firmware="nucleo"))
+        server = PtyServer(sim)
+        thread = threading.Thread(target=server.serve_forever, daemon=True)
+        thread.start()
+        yield server.ports["sensor"].name_for_host
+        server.stop()
+        thread.join(5)
+        assert sim.sensor.violation is None, f"NUCLEO firmware: {sim.sensor.violation}"
 
 
 @pytest.fixture

@@ -34,6 +34,7 @@ from .system import EXC_RETURN_PAGE, System
 from .timers import Tim2, Tim8
 from .usart import Usart3
 
+MAX_ELF_BYTES = 64 << 20
 EXCP_EXCEPTION_EXIT = 8  # QEMU's ARM exception number for an M-profile exception return
 REV_ID = {"V": 0x2003, "Y": 0x1003}
 # memory of the H743ZI (RM0433 2.3.2): ITCM, flash bank 1+2, DTCM, AXI SRAM, SRAM1-4, backup
@@ -45,17 +46,27 @@ DMA_UNREACHABLE = ((0x00000000, 64 << 10, "ITCM"), (0x20000000, 128 << 10, "DTCM
 
 def load_elf(path: Path) -> list[tuple[int, bytes]]:
     """(load address, bytes) of every PT_LOAD segment with file contents (ELF32 little-endian)."""
-    data = Path(path).read_bytes()
-    if data[:4] != b"\x7fELF" or data[4] != 1 or data[5] != 1 or data[18] != 40:
+    path = Path(path)
+    if path.stat().st_size > MAX_ELF_BYTES:
+        raise ValueError(f"{path} is larger than {MAX_ELF_BYTES >> 20} MiB: not an H743 image")
+    data = path.read_bytes()
+    if data[:4] != b"\x7fELF" or data[4:6] != b"\x01\x01" or data[18:20] != b"\x28\x00":
         raise ValueError(f"{path} is not a 32-bit little-endian ARM ELF")
-    phoff, = struct.unpack_from("<I", data, 28)
-    phentsize, phnum = struct.unpack_from("<HH", data, 42)
     out = []
-    for i in range(phnum):
-        kind, off, _va, pa, filesz, _memsz, _fl, _al = struct.unpack_from(
-            "<8I", data, phoff + i * phentsize)
-        if kind == 1 and filesz:
-            out.append((pa, data[off:off + filesz]))
+    try:
+        phoff, = struct.unpack_from("<I", data, 28)
+        phentsize, phnum = struct.unpack_from("<HH", data, 42)
+        for i in range(phnum):
+            kind, off, _va, pa, filesz, _memsz, _fl, _al = struct.unpack_from(
+                "<8I", data, phoff + i * phentsize)
+            if kind == 1 and filesz:
+                if off + filesz > len(data):
+                    raise ValueError
+                out.append((pa, data[off:off + filesz]))
+    except (struct.error, ValueError):
+        raise ValueError(f"{path} is a truncated or damaged ELF: rebuild it") from None
+    if not any(pa == 0x08000000 for pa, _ in out):
+        raise ValueError(f"{path} has nothing to load at 0x08000000 (flash): not an H743 image")
     return out
 
 
@@ -63,7 +74,7 @@ class H743:
     """One STM32H743ZI with its firmware loaded; `run_until(t)` advances simulated time (s)."""
 
     def __init__(self, elf: Path, rev: str = "V", faults: Iterable[str] = (),
-                 slice_instructions: int = 4_000, mmio_cycles: int = 20,
+                 slice_instructions: int = 20_000, mmio_cycles: int = 20,
                  idle_quantum_s: float = 100e-6, waive: Iterable[str] = ()) -> None:
         self.rev_id = REV_ID[rev]
         self.rev_v = rev == "V"
@@ -74,6 +85,10 @@ class H743:
         self.mmio_cycles = mmio_cycles
         self.idle_quantum_s = idle_quantum_s
         self.image = load_elf(elf)
+        for base, data in self.image:
+            if not any(b <= base and base + len(data) <= b + n for b, n in MEMORY):
+                raise ValueError(f"{elf}: a segment at 0x{base:08x} ({len(data)} B) lies "
+                                 f"outside the H743's memory")
         self.t = 0.0
         self.actions = 0
         self.instructions = 0  # executed in full slices (a lower bound of the total)

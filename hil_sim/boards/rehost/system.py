@@ -224,6 +224,7 @@ class System(Peripheral):
         for r, v in zip(FRAME_REGS, regs):
             if r != UC_ARM_REG_XPSR:
                 uc.reg_write(r, v)
+        uc.reg_write(UC_ARM_REG_XPSR, (regs[7] & ~0x3FF) | (1 << 24))  # flags, IT, thumb
         for r, v in zip(FP_REGS, fp):
             uc.reg_write(r, v)
         uc.reg_write(UC_ARM_REG_SP, sp + 32 + (4 if regs[7] & (1 << 9) else 0))

@@ -1,7 +1,8 @@
 """ADC1 of the rehosted H743: power-up, calibration and enable rules, TIM8-paced conversions.
 
 Conversions: each TIM8 update while ADSTART is set (EXTSEL = TIM8_TRGO, rising edge) starts
-one conversion of (sampling + 8.5) ADC cycles at 16 bits (RM0433 25.4.13); a trigger that
+one conversion of (sampling + 8.5) ADC cycles at 16 bits (RM0433 25.4.13), whose result the
+DMA stores one ADC cycle (the trigger's resynchronisation) after it ends; a trigger that
 arrives while the previous conversion runs is ignored, with no overrun flag, exactly the
 failure the firmware's DMA-position check must catch. Each result goes to the DMA stream
 whose DMAMUX request is ADC1 (9). `miss_trigger_after(t)` injects one ignored trigger.
@@ -138,9 +139,14 @@ class Adc(Peripheral):
     # ---------------------------------------------------------------- conversions
     def restart(self, t: float) -> None:
         """TIM8 (re)started at t: update k falls at t + (k + 1) * period."""
-        self.advance()
+        self.advance()  # the results of the old pacing, if TIM8 was not stopped first
         self._t_done = -1.0
         self.t_start, self.next_k = t, 0
+
+    def pacer_stopped(self) -> None:
+        """TIM8 stopped: no more triggers (results already converting still land)."""
+        self.advance()
+        self.t_start = None
 
     def conversion_s(self) -> float:
         """Duration of one 16-bit conversion (s) at the channel's sampling time."""
@@ -154,7 +160,10 @@ class Adc(Peripheral):
             return
         self._t_done = m.t
         period = m.tim8.period_s()
-        k_now = math.floor((m.t - self.t_start) / period + 1e-9) - 1
+        # a result reaches memory one ADC cycle (trigger resynchronisation) plus the
+        # conversion after its trigger: only those are in the ring by now
+        ready = m.t - self.conversion_s() - 1.0 / m.rcc.adc_hz()
+        k_now = math.floor((ready - self.t_start) / period + 1e-9) - 1
         if k_now < self.next_k:
             return
         ks = np.arange(self.next_k, k_now + 1)

@@ -127,7 +127,7 @@ class Tim8(Peripheral):
                 self.t_start = self.m.t
                 self.m.adc.restart(self.m.t)
             elif not value & 1:
-                self.m.adc.advance()
+                self.m.adc.pacer_stopped()
                 self.t_start = None
         elif offset in (0x28, 0x2C) and self.t_start is not None:
             self.m.violation("unmodelled-register",

@@ -45,7 +45,7 @@ def _messages() -> list[tuple[str, Message]]:
     cfg = dict(n_samples=1024, sample_rate_div=1, n_average=16, pretrigger=64, trigger_edge=0,
                modality=0, sample_format=0, trigger_timeout_ms=1000)
     wf = dict(shot_id=7, timestamp=480_000_123, trigger_phase=37, n_average=16, pretrigger=8,
-              sample_rate_div=1, modality=1, shots_dropped=2, adc_overruns=0)
+              sample_rate_div=1, modality=1, shots_dropped=2, adc_overruns=0, integrity_faults=3)
     return [
         ("ping", Message("ping", seq=1, nonce=0xDEADBEEF)),
         ("pong", Message("pong", seq=1, flags=1, nonce=0xDEADBEEF)),
@@ -53,7 +53,7 @@ def _messages() -> list[tuple[str, Message]]:
         ("identify_reply", Message(
             "identify_reply", seq=2, flags=1, protocol_version=1, fw_major=0, fw_minor=1,
             fw_patch=0, spec_hash=load_spec().hash, tick_hz=240_000_000,
-            adc_rate_hz=3_600_000, max_samples=8192, max_payload=16448,
+            adc_rate_hz=3_333_333, max_samples=8192, max_payload=16448,
             board="NUCLEO-H743ZI rev V")),
         ("get_config", Message("get_config", seq=3)),
         ("set_config", Message("set_config", seq=4, **cfg)),
@@ -66,7 +66,7 @@ def _messages() -> list[tuple[str, Message]]:
             "status", seq=8, flags=1, state=1, last_error=7, uptime_ms=123456,
             shots_remaining=42, triggers=1000, shots_sent=990, shots_dropped=10,
             adc_overruns=0, no_trigger_timeouts=1, rx_frames=50, rx_crc_errors=2,
-            rx_malformed=1, rx_oversize=0)),
+            rx_malformed=1, rx_oversize=0, integrity_faults=4)),
         ("clock_sync", Message("clock_sync", seq=9, host_time_ns=1_763_800_000_123_456_789)),
         ("clock_sync_reply", Message("clock_sync_reply", seq=9, flags=1,
                                      host_time_ns=1_763_800_000_123_456_789,
@@ -97,7 +97,7 @@ def _rejects() -> list[tuple[str, str, bytes]]:
         ("reject_runt", "malformed", b"\x00\x03\x01\x02\x00"),
         ("reject_bad_cobs", "malformed", b"\x00\x09\x01\x02\x00"),
         ("reject_bad_sample_format", "malformed", encode_raw(0xA0, 1, 0, bytes(20) + b"\x07"
-                                                             + bytes(9) + b"\x01\x02")),
+                                                             + bytes(13) + b"\x01\x02")),
     ]
 
 

@@ -118,7 +118,7 @@ def test_model_file_predicts_and_refuses_other_sample_rates(db, model, tmp_path,
         f["/entry/instrument/sensor"].attrs["adc_rate_hz"] = 2_000_000
     rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--scan",
                        str(other))
-    assert rc == 2 and "trained on 3582090 Hz data" in err and "retrain" in err
+    assert rc == 2 and "trained on 3333333 Hz data" in err and "retrain" in err
     assert len(err.strip().splitlines()) == 1
     rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--scan",
                        str(scan), "--window", "96")
@@ -135,7 +135,7 @@ def test_live_prediction_refuses_a_ranging_setup_at_another_rate(model, tmp_path
     setup.save(tmp_path / "ranging.json")
     rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--sensor",
                        str(tmp_path / "no-such-port"), "--ranging", str(tmp_path / "ranging.json"))
-    assert rc == 2 and "these waveforms are 1791045 Hz" in err  # refused before the port
+    assert rc == 2 and "these waveforms are 1666667 Hz" in err  # refused before the port
 
 
 def test_mixed_sample_rates_are_refused(db, tmp_path):

@@ -14,7 +14,7 @@ from dmdsm.host.ranging.matched_filter import (
     speed_of_sound_mm_s,
 )
 
-FS = 240e6 / 67
+FS = 240e6 / 72
 N = 1024
 US = gaussian_pulse(FS, 1.0e6, 0.6)
 OA = gaussian_pulse(FS, 0.8e6, 0.9)
@@ -85,7 +85,9 @@ def test_correlation_is_predicted_between_samples(tmpl):
     exact = (C[:, None, :] * np.exp(2j * np.pi * np.outer(500 + offsets, k) / N) * half
              ).real.sum(axis=2)
     err = c[:, 500 + lags] @ w - exact
-    assert np.sqrt(np.mean(err ** 2) / np.mean(exact ** 2)) < 0.01  # linear interp.: ~0.3
+    # 21 taps at 3.333 MS/s: US 1.7 %, OA 1.0 % (0.5 / 0.3 % at the earlier 3.58 MS/s, whose
+    # Nyquist lay further above the US pulse's band); linear interpolation: ~0.3
+    assert np.sqrt(np.mean(err ** 2) / np.mean(exact ** 2)) < 0.02
     assert np.abs(err[:, 4]).max() < 1e-4 * np.abs(exact).max()  # at a sample: the sample
 
 

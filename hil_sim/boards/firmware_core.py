@@ -11,6 +11,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
 LIB_PATH = REPO / "firmware/stm32/build/pc/libdmdsm_core.so"
+CAPTURE_OVERRUN, CAPTURE_INTEGRITY = 1, 2  # enum dmdsm_capture (firmware/stm32/core/core.h)
 
 
 class FirmwareBuildError(RuntimeError):
@@ -60,7 +61,7 @@ class FirmwareCore:
     _lib: ctypes.CDLL | None = None
 
     def __init__(self, name: str = "SIL", tick_hz: int = 240_000_000,
-                 adc_rate_hz: int = 3_600_000, max_samples: int = 8192) -> None:
+                 adc_rate_hz: int = 3_333_333, max_samples: int = 8192) -> None:
         if FirmwareCore._lib is None:
             FirmwareCore._lib = _load()
         self._l = FirmwareCore._lib
@@ -100,11 +101,16 @@ class FirmwareCore:
         return {name: getattr(cfg, name) for name, _ in SetConfig._fields_}
 
     def capture(self, samples: np.ndarray, edge_ticks: int, phase_ticks: int = 0,
-                overrun: bool = False) -> None:
-        """Deliver one burst (n_samples u16 ADC counts) for an edge at edge_ticks."""
+                overrun: bool = False, integrity_fault: bool = False) -> None:
+        """Deliver one burst (n_samples u16 ADC counts) for an edge at edge_ticks (ticks).
+
+        phase_ticks: edge to first sample (ticks). overrun: the ADC/DMA overran (counted in
+        adc_overruns); integrity_fault: the board found the DMA's write position disagreeing
+        with its timer (counted in integrity_faults). Either way the burst is not averaged."""
         s = np.ascontiguousarray(samples, dtype=np.uint16)
+        result = CAPTURE_OVERRUN if overrun else CAPTURE_INTEGRITY if integrity_fault else 0
         self._l.dmdsm_pc_capture(self._dev, s.ctypes.data, edge_ticks & 0xFFFFFFFF,
-                                 phase_ticks, int(overrun))
+                                 phase_ticks, result)
 
     @property
     def state(self) -> int:

@@ -19,7 +19,7 @@ from ..physics.signals import SensorModel, synthesize, to_adc
 from .firmware_core import FirmwareCore
 
 TICK_HZ = 240_000_000
-ADC_RATE_HZ = TICK_HZ / 67  # the NUCLEO's paced rate (docs/firmware.md)
+ADC_RATE_HZ = TICK_HZ / 72  # the NUCLEO's paced rate, 3.333 MS/s (docs/firmware.md)
 
 Pose = Callable[[float], tuple[np.ndarray, float]]  # time (s) -> (S in mm, theta in deg)
 
@@ -50,6 +50,10 @@ class SensorBoard:
         # measuring a pose again gives the same waveforms (exact regression comparisons)
         self.frozen_noise = frozen_noise
         self._in_arm = False
+
+    def sampling(self) -> bool:
+        """True while the core waits for laser edges (the Simulation then steps finely)."""
+        return self.core.armed() is not None
 
     def _ticks(self, t: float) -> int:
         return int(round(t * TICK_HZ)) & 0xFFFFFFFF

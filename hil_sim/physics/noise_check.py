@@ -14,7 +14,7 @@ from .objects import aluminium_block
 from .scene import Scene
 from .signals import SensorModel, _pulse, arrival_times_us, synthesize
 
-FS_MHZ = 240.0 / 67  # the NUCLEO's sample rate
+FS_MHZ = 240.0 / 72  # the NUCLEO's sample rate
 
 
 def depth_errors(n_points: int = 200, seed: int = 0, material: str = "aluminium"

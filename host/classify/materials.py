@@ -22,7 +22,7 @@ from ..scan.scanfile import ScanData, read_scan
 MODS = ("oa", "us")
 BOSS_PER_CLASS = 20  # BOSS trains on at most this many windows per class and modality:
 # its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set), 20-40 s per fit here
-WINDOW = 128  # samples per window (36 us at 3.58 MS/s)
+WINDOW = 128  # samples per window (38.4 us at 3.333 MS/s)
 PRE = 8       # samples kept before the arrival
 
 

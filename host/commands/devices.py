@@ -150,6 +150,7 @@ def write_shots(path: Path, shots: object, identity: dict, port: str,
         d.create_dataset("shot_id", data=np.arange(len(shots.received)))
         d.attrs.update(device_dropped=getattr(shots, "device_dropped", 0),
                        adc_overruns=getattr(shots, "adc_overruns", 0),
+                       integrity_faults=getattr(shots, "integrity_faults", 0),
                        link_rejected=getattr(shots, "link_rejected", 0),
                        lost=len(shots.lost))
     tmp.replace(path)
@@ -189,7 +190,8 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     got = int(shots.received.sum())
     summary = {"file": str(args.output), "shots": args.shots, "received": got,
                "lost": int(len(shots.lost)), "device_dropped": shots.device_dropped,
-               "link_rejected": shots.link_rejected, "adc_overruns": shots.adc_overruns}
+               "link_rejected": shots.link_rejected, "adc_overruns": shots.adc_overruns,
+               "integrity_faults": shots.integrity_faults}
     hint = ""
     if shots.device_dropped:  # the board had no room for them: the link is the bottleneck
         summary["hint"] = hint = (
@@ -198,7 +200,8 @@ def cmd_acquire(args: argparse.Namespace) -> int:
             "repetition rate")
     _out(args, summary, f"wrote {args.output}: {got} of {args.shots} shots; lost "
          f"{len(shots.lost)} (device dropped {shots.device_dropped}, link rejected "
-         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns})"
+         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns}, integrity faults "
+         f"{shots.integrity_faults})"
          + (f"\nhint: {hint}" if hint else ""))
     return 0
 

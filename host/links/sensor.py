@@ -26,6 +26,7 @@ log = logging.getLogger("dmdsm.sensor")
 
 SPEC = load_spec()
 ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
+BOOT_FAILURES = ("clock_failure", "power_failure", "adc_failure")  # arm NAKs: docs/firmware.md
 CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
 
 
@@ -53,7 +54,8 @@ class Shots:
     n_average: np.ndarray
     config: dict = field(default_factory=dict)
     device_dropped: int = 0     # shots the device dropped (its counter, during this run)
-    adc_overruns: int = 0
+    adc_overruns: int = 0       # bursts the ADC/DMA overran (device counter, this run)
+    integrity_faults: int = 0   # bursts dropped: DMA position disagreed with the timer
     link_rejected: int = 0      # frames the host decoder rejected during this run
     # host monotonic times (s): arm acknowledged, first byte after it, last shot decoded;
     # armed -> first byte is the laser and capture time, first byte -> done the transfer
@@ -235,6 +237,9 @@ class SensorClient:
             if err == "out_of_range" and name == "set_config" and 0 < r.detail <= len(
                     CONFIG_FIELDS):
                 what = f": {CONFIG_FIELDS[r.detail - 1]} is outside its range"
+            elif err in BOOT_FAILURES:  # the board cannot acquire since its start-up
+                what = (f": {SPEC.enum_docs['error'][err]}; its boot log and `dmdsm info` "
+                        f"(board name) say which step failed")
             raise SensorError(f"the sensor board refused {name} ({err}{what})")
 
     def handshake(self) -> Message:
@@ -311,6 +316,7 @@ class SensorClient:
         self._counters = after
         shots.device_dropped = after["shots_dropped"] - before["shots_dropped"]
         shots.adc_overruns = after["adc_overruns"] - before["adc_overruns"]
+        shots.integrity_faults = after["integrity_faults"] - before["integrity_faults"]
         shots.link_rejected = self.decoder.stats.errors - rejected0
         return shots
 

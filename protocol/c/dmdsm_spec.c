@@ -58,11 +58,11 @@ static const struct dmdsm_msg_info infos[] = {
     {0x81, 0, 0, 4, 0x00, "pong"},
     {0x82, 0, 2, 24, 0x00, "identify_reply"},
     {0x83, 0, 0, 15, 0x00, "config"},
-    {0x87, 0, 0, 46, 0x00, "status"},
+    {0x87, 0, 0, 50, 0x00, "status"},
     {0x88, 0, 0, 16, 0x00, "clock_sync_reply"},
     {0xf0, 0, 0, 1, 0x00, "ack"},
     {0xf1, 0, 0, 4, 0x00, "nak"},
-    {0xa0, 0, 3, 30, 0x00, "waveform"},
+    {0xa0, 0, 3, 34, 0x00, "waveform"},
     {0xa1, 0, 2, 2, 0x00, "log"},
 };
 
@@ -328,7 +328,8 @@ size_t dmdsm_pack_status(const struct dmdsm_status *m, uint8_t *out)
     put_le(out + 34, (uint64_t)(uint32_t)m->rx_crc_errors, 4);
     put_le(out + 38, (uint64_t)(uint32_t)m->rx_malformed, 4);
     put_le(out + 42, (uint64_t)(uint32_t)m->rx_oversize, 4);
-    return 46u;
+    put_le(out + 46, (uint64_t)(uint32_t)m->integrity_faults, 4);
+    return 50u;
 }
 
 bool dmdsm_unpack_status(const uint8_t *p, size_t len, struct dmdsm_status *m)
@@ -348,6 +349,7 @@ bool dmdsm_unpack_status(const uint8_t *p, size_t len, struct dmdsm_status *m)
     m->rx_crc_errors = (uint32_t)get_le(p + 34, 4);
     m->rx_malformed = (uint32_t)get_le(p + 38, 4);
     m->rx_oversize = (uint32_t)get_le(p + 42, 4);
+    m->integrity_faults = (uint32_t)get_le(p + 46, 4);
     return true;
 }
 
@@ -411,9 +413,10 @@ size_t dmdsm_pack_waveform(const struct dmdsm_waveform *m, uint8_t *out)
     put_le(out + 21, (uint64_t)(uint8_t)m->modality, 1);
     put_le(out + 22, (uint64_t)(uint32_t)m->shots_dropped, 4);
     put_le(out + 26, (uint64_t)(uint32_t)m->adc_overruns, 4);
+    put_le(out + 30, (uint64_t)(uint32_t)m->integrity_faults, 4);
     if (m->samples_len)
-        memcpy(out + 30, m->samples, m->samples_len);
-    return 30u + m->samples_len;
+        memcpy(out + 34, m->samples, m->samples_len);
+    return 34u + m->samples_len;
 }
 
 bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *m)
@@ -430,8 +433,9 @@ bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *
     m->modality = (uint8_t)get_le(p + 21, 1);
     m->shots_dropped = (uint32_t)get_le(p + 22, 4);
     m->adc_overruns = (uint32_t)get_le(p + 26, 4);
-    m->samples = p + 30;
-    m->samples_len = len - 30u;
+    m->integrity_faults = (uint32_t)get_le(p + 30, 4);
+    m->samples = p + 34;
+    m->samples_len = len - 34u;
     return true;
 }
 
@@ -542,6 +546,7 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "rx_crc_errors=%llu ", (unsigned long long)get_le(payload + 34, 4));
         put(&w, "rx_malformed=%llu ", (unsigned long long)get_le(payload + 38, 4));
         put(&w, "rx_oversize=%llu ", (unsigned long long)get_le(payload + 42, 4));
+        put(&w, "integrity_faults=%llu ", (unsigned long long)get_le(payload + 46, 4));
         break;
     }
     case 0x88: {
@@ -570,8 +575,9 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "modality=%llu ", (unsigned long long)get_le(payload + 21, 1));
         put(&w, "shots_dropped=%llu ", (unsigned long long)get_le(payload + 22, 4));
         put(&w, "adc_overruns=%llu ", (unsigned long long)get_le(payload + 26, 4));
-        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 30u),
-            (unsigned long)crc32_of(payload + 30, len - 30u));
+        put(&w, "integrity_faults=%llu ", (unsigned long long)get_le(payload + 30, 4));
+        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 34u),
+            (unsigned long)crc32_of(payload + 34, len - 34u));
         break;
     }
     case 0xa1: {

@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 #define DMDSM_PROTOCOL_VERSION 1u
-#define DMDSM_SPEC_HASH UINT64_C(0x627b58c6681825aa)
+#define DMDSM_SPEC_HASH UINT64_C(0xc4ea65c57a7852ae)
 #define DMDSM_MAX_PAYLOAD 16448u
 #define DMDSM_MAX_COMMAND_PAYLOAD 64u
 #define DMDSM_HEADER_SIZE 5u
@@ -34,6 +34,10 @@ enum dmdsm_error {
     DMDSM_ERROR_TX_OVERFLOW = 8, /* a shot was dropped because the link was busy */
     DMDSM_ERROR_ADC_OVERRUN = 9, /* the ADC or its DMA overran during a burst */
     DMDSM_ERROR_INTERNAL = 10, /* firmware fault; the message text says where */
+    DMDSM_ERROR_SAMPLE_INTEGRITY = 11, /* a burst was dropped: the DMA's write position disagreed with the timer (a missed or late ADC trigger) */
+    DMDSM_ERROR_CLOCK_FAILURE = 12, /* HSE, PLL or the clock switch did not become ready; the board runs on HSI 64 MHz without acquisition */
+    DMDSM_ERROR_POWER_FAILURE = 13, /* the voltage scale (VOS0/VOS1) was not confirmed; the board runs at a safe lower clock (the log says which) */
+    DMDSM_ERROR_ADC_FAILURE = 14, /* ADC calibration or ready timed out at boot; acquisition is unavailable */
 };
 
 /* acquisition state machine */
@@ -205,7 +209,7 @@ size_t dmdsm_pack_config(const struct dmdsm_config *m, uint8_t *out);
 bool dmdsm_unpack_config(const uint8_t *p, size_t len, struct dmdsm_config *m);
 
 /* status: reply to get_status: state and cumulative counters since boot (device -> host) */
-#define DMDSM_STATUS_FIXED_SIZE 46u
+#define DMDSM_STATUS_FIXED_SIZE 50u
 struct dmdsm_status {
     uint8_t state; /* acquisition state */
     uint8_t last_error; /* last error raised by the firmware */
@@ -220,6 +224,7 @@ struct dmdsm_status {
     uint32_t rx_crc_errors; /* received frames with a bad CRC */
     uint32_t rx_malformed; /* received frames with bad COBS, length or version */
     uint32_t rx_oversize; /* received frames longer than the maximum */
+    uint32_t integrity_faults; /* bursts dropped because the DMA's write position disagreed with the timer: a missed or late ADC trigger */
 };
 size_t dmdsm_pack_status(const struct dmdsm_status *m, uint8_t *out);
 bool dmdsm_unpack_status(const uint8_t *p, size_t len, struct dmdsm_status *m);
@@ -252,7 +257,7 @@ size_t dmdsm_pack_nak(const struct dmdsm_nak *m, uint8_t *out);
 bool dmdsm_unpack_nak(const uint8_t *p, size_t len, struct dmdsm_nak *m);
 
 /* waveform: one averaged shot; seq counts waveform frames so the host sees gaps (device -> host) */
-#define DMDSM_WAVEFORM_FIXED_SIZE 30u
+#define DMDSM_WAVEFORM_FIXED_SIZE 34u
 struct dmdsm_waveform {
     uint32_t shot_id; /* counts waveforms since arm, from 0; gaps = dropped shots */
     uint64_t timestamp; /* device clock at the first averaged shot's edge [ticks] */
@@ -264,6 +269,7 @@ struct dmdsm_waveform {
     uint8_t modality; /* sensing path */
     uint32_t shots_dropped; /* device's cumulative dropped-waveform counter */
     uint32_t adc_overruns; /* device's cumulative ADC overrun counter */
+    uint32_t integrity_faults; /* device's cumulative sample-integrity fault counter (bursts dropped: DMA position disagreed with the timer) */
     const uint8_t *samples; /* the waveform; element type from sample_format */
     size_t samples_len; /* bytes */
 };

@@ -36,7 +36,7 @@ static void tx_start(void *ctx, const uint8_t *p, size_t n)
 
 static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
                                            tx_start, tx_busy};
-static const struct dmdsm_board_info info = {"test board", 1000000u, 3600000u, 8192u};
+static const struct dmdsm_board_info info = {"test board", 1000000u, 3333333u, 8192u, 0};
 static struct dmdsm_core core;
 
 /* ---------------------------------------------------------------- host side */
@@ -135,7 +135,7 @@ static void shot(uint16_t value, uint32_t edge)
     static uint16_t s[DMDSM_CORE_MAX_SAMPLES];
     for (size_t i = 0; i < DMDSM_CORE_MAX_SAMPLES; i++)
         s[i] = (uint16_t)(value + (i & 1));
-    dmdsm_core_capture_done(&core, s, edge, 10, false);
+    dmdsm_core_capture_done(&core, s, edge, 10, DMDSM_CAPTURE_OK);
 }
 
 /* ---------------------------------------------------------------- tests */
@@ -410,7 +410,7 @@ static void test_overrun_is_counted_not_averaged(void)
     arm(2, 1);
     drain();
     static uint16_t s[DMDSM_CORE_MAX_SAMPLES];
-    dmdsm_core_capture_done(&core, s, 0, 0, true);
+    dmdsm_core_capture_done(&core, s, 0, 0, DMDSM_CAPTURE_OVERRUN);
     drain();
     CHECK(n_msgs == 0 && core.count.adc_overruns == 1 && core.state == DMDSM_STATE_ARMED);
     shot(5, 0);
@@ -418,6 +418,64 @@ static void test_overrun_is_counted_not_averaged(void)
     struct dmdsm_waveform w;
     CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
     CHECK(w.adc_overruns == 1 && w.samples[0] == 5);
+}
+
+static void test_integrity_fault_is_counted_not_averaged(void)
+{
+    reset();
+    struct dmdsm_set_config cfg = good;
+    cfg.n_average = 2;
+    set_config(1, &cfg);
+    arm(2, 1);
+    drain();
+    static uint16_t stale[DMDSM_CORE_MAX_SAMPLES];
+    for (size_t i = 0; i < DMDSM_CORE_MAX_SAMPLES; i++)
+        stale[i] = 60000u; /* what a stalled ring would hold: must not reach the average */
+    B.now = 1000;
+    shot(4, 0);
+    int arms = B.arms;
+    dmdsm_core_capture_done(&core, stale, 100, 3, DMDSM_CAPTURE_INTEGRITY);
+    drain();
+    CHECK(n_msgs == 0 && core.count.integrity_faults == 1 && core.count.adc_overruns == 0);
+    CHECK(core.state == DMDSM_STATE_ARMED && B.arms == arms + 1 && core.n_in_avg == 1);
+    CHECK(core.count.triggers == 2);
+    struct dmdsm_status s = status(3);
+    CHECK(s.integrity_faults == 1 && s.adc_overruns == 0);
+    CHECK(s.last_error == DMDSM_ERROR_SAMPLE_INTEGRITY);
+    shot(6, 200);
+    drain();
+    struct dmdsm_waveform w;
+    CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    CHECK(w.integrity_faults == 1 && w.adc_overruns == 0 && w.n_average == 2);
+    /* little-endian u16 means: (4 + 6) / 2 and (5 + 7) / 2, no 60000 from the dropped burst */
+    CHECK(w.samples[0] == 5 && w.samples[1] == 0 && w.samples[2] == 6 && w.samples[3] == 0);
+    CHECK(w.timestamp == 0); /* the first good edge, not the dropped one */
+}
+
+static void test_unavailable_capture_naks_arm(void)
+{
+    static const struct dmdsm_board_info broken = {"test board", 1000000u, 3333333u, 8192u,
+                                                   DMDSM_ERROR_ADC_FAILURE};
+    memset(&B, 0, sizeof B);
+    dmdsm_core_init(&core, &ops, &broken);
+    dmdsm_core_log(&core, DMDSM_LOG_LEVEL_ERROR, DMDSM_ERROR_ADC_FAILURE,
+                   "boot: ADC calibration did not finish after 100 ms; acquisition unavailable");
+    drain();
+    struct dmdsm_log l;
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_LOG && dmdsm_unpack_log(msgs[0].payload,
+                                                                         msgs[0].len, &l));
+    CHECK(l.level == DMDSM_LOG_LEVEL_ERROR && l.code == DMDSM_ERROR_ADC_FAILURE);
+    CHECK(status(1).last_error == DMDSM_ERROR_ADC_FAILURE);
+    arm(2, 1);
+    expect_nak(DMDSM_ERROR_ADC_FAILURE, 0, 2);
+    CHECK(B.arms == 0 && core.state == DMDSM_STATE_IDLE);
+    set_config(3, &good); /* everything else still works */
+    expect_ack(DMDSM_MSG_SET_CONFIG, 3);
+    /* a warning does not become last_error */
+    reset();
+    dmdsm_core_log(&core, DMDSM_LOG_LEVEL_WARNING, DMDSM_ERROR_NO_TRIGGER, "w");
+    drain();
+    CHECK(status(4).last_error == DMDSM_ERROR_NONE);
 }
 
 static void test_clock_sync(void)
@@ -447,6 +505,8 @@ int main(void)
     test_trigger_timeout();
     test_timestamps_survive_wrap();
     test_overrun_is_counted_not_averaged();
+    test_integrity_fault_is_counted_not_averaged();
+    test_unavailable_capture_naks_arm();
     test_clock_sync();
     if (failures) {
         fprintf(stderr, "test_core: %d check(s) failed\n", failures);

@@ -13,7 +13,7 @@ from dmdsm.host.calibration.solver import CalibrationError
 from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
 from dmdsm.host.ranging.matched_filter import gaussian_pulse
 
-FS = 240e6 / 67
+FS = 240e6 / 72
 GOOD = RangingSetup(FS, {"oa": gaussian_pulse(FS, 1e6, 0.8)}, {"oa": (0, 1024)},
                     {"oa": RangeCal("oa", 2e-6, 343e3, 1e-8, 0, 0.05, 21)}).to_json()
 

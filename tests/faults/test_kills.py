@@ -52,7 +52,7 @@ def scan_inputs(emu, folder):
     s = emu.sim.scene
     (folder / "cal.toml").write_text(f"[calibration]\nv = {s.v.tolist()}\nn = "
                                      f"{s.n.tolist()}\nX_R = {s.X_R.tolist()}\n")
-    fs = 240e6 / 67
+    fs = 240e6 / 72
     RangingSetup(fs, {"us": gaussian_pulse(fs, 1e6, 0.8)}, {"us": (0, 1024)},
                  {"us": RangeCal("us", 4e-6, 343e3, 1e-8, 0, 0.1, 21)}
                  ).save(folder / "ranging.json")

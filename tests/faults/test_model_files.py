@@ -37,7 +37,7 @@ def synthetic(n_per_class=30, seed=0):
     has = {"oa": np.array([c != "glass" or i % 2 == 0 for i, c in enumerate(y)]),
            "us": np.ones(len(y), bool)}
     return Dataset(X, has, np.array(y), np.array([f"{c}{i % 2}" for i, c in enumerate(y)]),
-                   3.58e6, WINDOW, ["synthetic"], 16)
+                   3.333e6, WINDOW, ["synthetic"], 16)
 
 
 @pytest.fixture(scope="module")

@@ -33,7 +33,7 @@ def inputs(tmp_path):
     cal = tmp_path / "cal.toml"
     cal.write_text("[calibration]\nv = [0.0656, 0.9955, -0.0678]\nn = [-0.0007, 0.0022, "
                    "0.9999]\nX_R = [235.21, 288.17, 0.0]\n")
-    fs = 240e6 / 67
+    fs = 240e6 / 72
     ranging = tmp_path / "ranging.json"
     RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
                  {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(ranging)

@@ -96,7 +96,7 @@ def test_lost_sensor_stops_the_step_and_keeps_the_points(emulator, tmp_path):
     from dmdsm.host.ranging.matched_filter import gaussian_pulse
 
     emu = emulator(speed=5.0, scene="aluminium_block", seed=4)
-    fs = 240e6 / 67
+    fs = 240e6 / 72
     ranging, data = tmp_path / "ranging.json", tmp_path / "rig.csv"
     RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
                  {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(ranging)

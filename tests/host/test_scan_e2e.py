@@ -195,7 +195,7 @@ def test_unsafe_plans_are_refused_before_the_stage_moves(emulator, tmp_path, cha
     ranging = tmp_path / "ranging.json"
     from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
     from dmdsm.host.ranging.matched_filter import gaussian_pulse
-    fs = 240e6 / 67
+    fs = 240e6 / 72
     RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
                  {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(ranging)
     text = PLAN.format(levels="[20.0]", step=2.0)

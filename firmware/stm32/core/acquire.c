@@ -62,6 +62,8 @@ void dmdsm_core_log(struct dmdsm_core *c, uint8_t level, uint8_t code, const cha
     uint8_t frame[DMDSM_CORE_CTL_FRAME];
     if (m.text_len > 200)
         m.text_len = 200;
+    if (level >= DMDSM_LOG_LEVEL_ERROR && code != DMDSM_ERROR_NONE)
+        c->last_error = code;
     size_t len = dmdsm_pack_log(&m, p);
     size_t n = dmdsm_frame_encode(frame, sizeof frame, DMDSM_MSG_LOG, 0, c->log_seq++, p, len);
     if (n)
@@ -115,7 +117,8 @@ static void emit_waveform(struct dmdsm_core *c)
         .n_average = (uint16_t)n_avg, .pretrigger = cfg->pretrigger,
         .sample_rate_div = cfg->sample_rate_div, .sample_format = cfg->sample_format,
         .modality = cfg->modality, .shots_dropped = c->count.shots_dropped,
-        .adc_overruns = c->count.adc_overruns, .samples = NULL, .samples_len = 0};
+        .adc_overruns = c->count.adc_overruns, .integrity_faults = c->count.integrity_faults,
+        .samples = NULL, .samples_len = 0};
     uint8_t head[DMDSM_WAVEFORM_FIXED_SIZE];
     struct dmdsm_encoder e;
     dmdsm_enc_begin(&e, c->wave[slot], sizeof c->wave[slot], DMDSM_MSG_WAVEFORM, 0,
@@ -145,16 +148,19 @@ static void emit_waveform(struct dmdsm_core *c)
 }
 
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
-                             uint32_t edge_ticks, uint16_t phase, bool overrun)
+                             uint32_t edge_ticks, uint16_t phase, enum dmdsm_capture result)
 {
     if (c->state != DMDSM_STATE_ARMED && c->state != DMDSM_STATE_CAPTURING)
         return; /* a late burst after disarm */
     c->count.triggers++;
     uint64_t edge = extend(c, edge_ticks);
     c->armed_at = edge;
-    if (overrun) {
+    if (result == DMDSM_CAPTURE_OVERRUN) {
         c->count.adc_overruns++;
         c->last_error = DMDSM_ERROR_ADC_OVERRUN;
+    } else if (result != DMDSM_CAPTURE_OK) { /* never averaged: its samples may be stale */
+        c->count.integrity_faults++;
+        c->last_error = DMDSM_ERROR_SAMPLE_INTEGRITY;
     } else {
         if (c->n_in_avg == 0)
             c->avg_first_edge = edge;

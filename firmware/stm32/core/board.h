@@ -40,6 +40,8 @@ struct dmdsm_board_info {
     uint32_t tick_hz;     /* rate of now_ticks and capture timestamps */
     uint32_t adc_rate_hz; /* sample rate at sample_rate_div = 1 */
     uint16_t max_samples; /* largest burst the board's buffers hold */
+    uint8_t capture_error; /* enum dmdsm_error: why acquisition is unavailable (arm is NAKed
+                            * with it), e.g. an ADC that failed at boot; 0 = available */
 };
 
 #endif /* DMDSM_BOARD_H */

@@ -109,6 +109,7 @@ static void cmd_status(struct dmdsm_core *c, const struct dmdsm_frame *f)
         .rx_crc_errors = c->rx.stats.crc_errors,
         .rx_malformed = c->rx.stats.malformed + c->rx.stats.bad_version,
         .rx_oversize = c->rx.stats.oversize,
+        .integrity_faults = c->count.integrity_faults,
     };
     uint8_t p[DMDSM_STATUS_FIXED_SIZE];
     respond(c, DMDSM_MSG_STATUS, f->seq, p, dmdsm_pack_status(&m, p));
@@ -143,6 +144,8 @@ static void execute(struct dmdsm_core *c, const struct dmdsm_frame *f)
         dmdsm_unpack_arm(f->payload, f->len, &m);
         if (c->state != DMDSM_STATE_IDLE)
             nak(c, f, DMDSM_ERROR_BUSY, 0);
+        else if (c->info->capture_error != DMDSM_ERROR_NONE)
+            nak(c, f, c->info->capture_error, 0); /* e.g. adc_failure: nothing would come */
         else if (dmdsm_core_arm(c, m.n_shots))
             ack(c, f);
         break;

@@ -28,6 +28,7 @@ struct dmdsm_counters {
     uint32_t shots_sent;
     uint32_t shots_dropped;
     uint32_t adc_overruns;
+    uint32_t integrity_faults; /* bursts whose DMA position disagreed with the timer */
     uint32_t no_trigger_timeouts;
     uint32_t rx_frames;
     uint32_t ctl_dropped; /* responses lost to a full control queue (never expected) */
@@ -78,15 +79,22 @@ void dmdsm_core_init(struct dmdsm_core *c, const struct dmdsm_board_ops *ops,
                      const struct dmdsm_board_info *info);
 /* bytes received from the host (any chunking) */
 void dmdsm_core_rx(struct dmdsm_core *c, const uint8_t *p, size_t n);
+/* how a burst ended; only DMDSM_CAPTURE_OK bursts are averaged */
+enum dmdsm_capture {
+    DMDSM_CAPTURE_OK = 0,
+    DMDSM_CAPTURE_OVERRUN = 1,   /* the ADC or DMA overran, or the ring lapped the burst */
+    DMDSM_CAPTURE_INTEGRITY = 2, /* the DMA's write position disagreed with the timer */
+};
 /* a burst finished: samples, 32-bit ticks of the edge, edge-to-first-sample
- * phase in ticks, and whether the ADC or DMA overran */
+ * phase in ticks, and how it ended (enum dmdsm_capture) */
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
-                             uint32_t edge_ticks, uint16_t phase, bool overrun);
+                             uint32_t edge_ticks, uint16_t phase, enum dmdsm_capture result);
 /* run from the main loop: starts queued transfers, checks the trigger timeout */
 void dmdsm_core_poll(struct dmdsm_core *c);
 /* current time in ticks, 64-bit */
 uint64_t dmdsm_core_now(struct dmdsm_core *c);
-/* queue a log line (also used by boards, e.g. after a HardFault reset) */
+/* queue a log line (also used by boards, e.g. after a HardFault reset or a boot failure);
+ * an error-level line with a code also becomes status.last_error */
 void dmdsm_core_log(struct dmdsm_core *c, uint8_t level, uint8_t code, const char *text);
 
 /* internal, shared between the core's files */

@@ -12,7 +12,7 @@ extern uint32_t _estack;
 /* in AXI SRAM (NOLOAD; dmdsm_core_init clears it): its frames are sent by DMA */
 static struct dmdsm_core core __attribute__((section(".axi_bss"), aligned(32)));
 static struct dmdsm_board_info info;
-static char board_name[32];
+static char board_name[80];
 
 void board_early_init(void)
 {
@@ -101,19 +101,31 @@ static bool op_tx_busy(void *ctx)
 static const struct dmdsm_board_ops ops = {NULL, op_arm, op_disarm, op_now, op_tx_start,
                                            op_tx_busy};
 
+/* why arm is refused: the failure that left the board without acquisition, or 0 */
+static uint8_t capture_error(void)
+{
+    if (capture_available())
+        return DMDSM_ERROR_NONE;
+    return clocks.failure ? clocks.failure : DMDSM_ERROR_ADC_FAILURE;
+}
+
 int main(void)
 {
+    wait_init(64000000u); /* HSI after reset: bounded waits from the first one on */
     clock_init();
     caches_enable();
     leds_init();
     RCC->AHB4ENR |= RCC_AHB4ENR_CRCEN;
+    (void)RCC->AHB4ENR;
     CRC_UNIT->POL = 0x04C11DB7u;
     serial_init(DMDSM_BAUD);
     capture_init();
-    strcpy(board_name, clocks.rev_v ? "NUCLEO-H743ZI rev V" : "NUCLEO-H743ZI rev Y");
+    boot_board_name(board_name, sizeof board_name,
+                    clocks.rev_v ? "NUCLEO-H743ZI rev V" : "NUCLEO-H743ZI rev Y");
     info = (struct dmdsm_board_info){board_name, clocks.timclk_hz, capture_adc_rate_hz(),
-                                     8192u};
+                                     8192u, capture_error()};
     dmdsm_core_init(&core, &ops, &info);
+    boot_report(&core);
     struct fault_record f;
     bool fault = fault_take(&f);
     if (fault) {
@@ -129,15 +141,19 @@ int main(void)
         const uint16_t *samples;
         uint32_t edge;
         uint16_t phase;
-        bool overrun;
-        if (capture_poll(&samples, &edge, &phase, &overrun))
-            dmdsm_core_capture_done(&core, samples, edge, phase, overrun);
+        enum dmdsm_capture result;
+        if (capture_poll(&samples, &edge, &phase, &result))
+            dmdsm_core_capture_done(&core, samples, edge, phase, result);
         dmdsm_core_poll(&core);
-        /* LEDs: green heartbeat 1 Hz, blue while armed, red after a fault or error */
-        led_set(0, (capture_now() / (info.tick_hz / 2u)) & 1u);
+        /* LEDs: green heartbeat 1 Hz, blue while armed, red: the boot failure's blink
+         * code, else steady after a fault or an error */
+        uint64_t ms = dmdsm_core_now(&core) / (info.tick_hz / 1000u);
+        led_set(0, (ms / 500u) & 1u);
         led_set(1, core.state == DMDSM_STATE_ARMED);
-        led_set(2, fault || core.last_error == DMDSM_ERROR_ADC_OVERRUN ||
-                       core.last_error == DMDSM_ERROR_INTERNAL);
+        led_set(2, boot_failed_step() ? boot_led(ms)
+                                      : fault || core.last_error == DMDSM_ERROR_ADC_OVERRUN ||
+                                            core.last_error == DMDSM_ERROR_SAMPLE_INTEGRITY ||
+                                            core.last_error == DMDSM_ERROR_INTERNAL);
     }
 }
 

@@ -69,8 +69,7 @@ void serial_tx_start(const uint8_t *p, size_t n)
 {
     struct dma_stream *s = &DMA1->S[TX_STREAM];
     s->CR = 0;
-    while (s->CR & DMA_CR_EN) {
-    }
+    (void)wait_bits(&s->CR, DMA_CR_EN, 0, 1000u); /* idle or finishing one byte: < 1 us */
     dcache_clean(p, (uint32_t)n);
     DMA1->LIFCR = DMA_LIFCR_S1;
     USART3->ICR = 1u << 6; /* TCCF */

@@ -65,7 +65,7 @@ struct dmdsm_pc *dmdsm_pc_new(const char *name, uint32_t tick_hz, uint32_t adc_r
     d->ops = ops_template;
     d->ops.ctx = d;
     strncpy(d->name, name, sizeof d->name - 1);
-    d->info = (struct dmdsm_board_info){d->name, tick_hz, adc_rate_hz, max_samples};
+    d->info = (struct dmdsm_board_info){d->name, tick_hz, adc_rate_hz, max_samples, 0};
     d->ticks = ticks;
     dmdsm_core_init(&d->core, &d->ops, &d->info);
     return d;
@@ -111,10 +111,13 @@ int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg)
 }
 
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
-                      uint16_t phase, int overrun)
+                      uint16_t phase, int result)
 {
+    enum dmdsm_capture r = result == DMDSM_CAPTURE_OVERRUN     ? DMDSM_CAPTURE_OVERRUN
+                           : result == DMDSM_CAPTURE_INTEGRITY ? DMDSM_CAPTURE_INTEGRITY
+                                                               : DMDSM_CAPTURE_OK;
     d->armed = 0; /* the core re-arms for the next shot */
-    dmdsm_core_capture_done(&d->core, samples, edge_ticks, phase, overrun != 0);
+    dmdsm_core_capture_done(&d->core, samples, edge_ticks, phase, r);
 }
 
 void dmdsm_pc_poll(struct dmdsm_pc *d)

@@ -21,9 +21,10 @@ void dmdsm_pc_rx(struct dmdsm_pc *d, const uint8_t *p, size_t n);
 size_t dmdsm_pc_tx(struct dmdsm_pc *d, uint8_t *out, size_t cap);
 /* 1 if waiting for a laser edge (and the configuration of that burst) */
 int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg);
-/* one burst after an edge at edge_ticks: cfg.n_samples samples */
+/* one burst after an edge at edge_ticks: cfg.n_samples samples; result 0 = good,
+ * 1 = ADC overrun, 2 = sample-integrity fault (enum dmdsm_capture); only good ones are averaged */
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
-                      uint16_t phase, int overrun);
+                      uint16_t phase, int result);
 void dmdsm_pc_poll(struct dmdsm_pc *d);
 /* enum dmdsm_state */
 uint8_t dmdsm_pc_state(const struct dmdsm_pc *d);

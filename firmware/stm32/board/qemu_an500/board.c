@@ -93,7 +93,7 @@ static bool tx_busy(void *ctx)
 static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
                                            tx_start, tx_busy};
 static const struct dmdsm_board_info info = {"QEMU mps2-an500 test pattern", SYSCLK_HZ,
-                                             3600000u, MAX_SAMPLES};
+                                             3333333u, MAX_SAMPLES, 0};
 
 /* the emulated laser and ADC: one burst per period while armed */
 static void trigger_poll(void)
@@ -111,7 +111,7 @@ static void trigger_poll(void)
     for (uint32_t i = 0; i < trig.cfg.n_samples; i++)
         adc_buf[i] = (uint16_t)((i + k) & 0xFFFu);
     trig.armed = 0; /* the core re-arms for the next shot */
-    dmdsm_core_capture_done(&core, adc_buf, edge, (uint16_t)(k % 7u), false);
+    dmdsm_core_capture_done(&core, adc_buf, edge, (uint16_t)(k % 7u), DMDSM_CAPTURE_OK);
 }
 
 static void uart_poll(void)

@@ -16,8 +16,8 @@ static char board_name[80];
 
 void board_early_init(void)
 {
-    if ((DBGMCU_IDCODE >> 16) == REV_ID_Y)
-        AXI_TARG7_FN_MOD = 1u; /* ES0392 2.2.9 before any AXI SRAM access */
+    if (!rev_is_v())
+        AXI_TARG7_FN_MOD = 1u; /* ES0392 2.2.9 (rev Y and older) before any AXI SRAM access */
 }
 
 static void caches_enable(void)

@@ -49,6 +49,15 @@ def test_flash_runs_the_tool_on_the_built_elf(tmp_path):
     assert "program build/nucleo_h743zi/firmware.elf verify reset exit" in args
 
 
+def test_flash_zi2_builds_and_flashes_the_zi2_variant(tmp_path):
+    log = tmp_path / "args.txt"
+    fake = f"#!/bin/sh\necho \"$@\" > {log}\nexit 0\n"
+    r = run(tmp_path, "--nucleo", "zi2", "--json", fake_tool=("openocd", fake))
+    assert r.returncode == 0, r.stderr
+    assert "program build/nucleo_h743zi2/firmware.elf verify reset exit" in log.read_text()
+    assert '"board": "nucleo_h743zi2"' in r.stdout
+
+
 def test_flash_marlin_explains_avrdude_failures(tmp_path):
     hexfile = tmp_path / "marlin.hex"
     hexfile.write_text(":00000001FF\n")

@@ -15,6 +15,8 @@ TOOLS = {  # --tool -> (program, Debian/PyPI package, make FLASHER)
     "pyocd": ("pyocd", "pip install pyocd", "pyocd"),
     "dfu": ("dfu-util", "apt-get install dfu-util", "dfu"),
 }
+# --nucleo -> (make NUCLEO=, build folder); the -ZI2 has LD2 on PE1 (docs/firmware.md)
+NUCLEOS = {"zi": ("ZI", "nucleo_h743zi"), "zi2": ("ZI2", "nucleo_h743zi2")}
 NO_BOARD = ("open failed", "unable to open", "no device found", "no st-link", "couldn't find",
             "no dfu capable", "no connected debug probes", "libusb_open")
 
@@ -30,6 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s = psub.add_parser("stm32", help="the sensor board (NUCLEO-H743ZI / -ZI2)")
     s.add_argument("--tool", choices=sorted(TOOLS), default="openocd",
                    help="flashing tool (default openocd, board/st_nucleo_h743zi.cfg)")
+    s.add_argument("--nucleo", choices=sorted(NUCLEOS), default="zi",
+                   help="board variant: zi = NUCLEO-H743ZI (LD2 on PB7, default), zi2 = "
+                        "NUCLEO-H743ZI2 (LD2 on PE1); only the blue LED differs")
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=cmd_flash_stm32)
     m = psub.add_parser("marlin", help="the stage board (Chiron, ATmega2560) with avrdude")
@@ -47,8 +52,10 @@ def cmd_flash_stm32(args: argparse.Namespace) -> int:
     if shutil.which(program) is None:
         raise FlashError(f"{program} not found: {install} (or choose --tool "
                          f"{'|'.join(t for t in TOOLS if t != args.tool)})")
+    variant, build = NUCLEOS[args.nucleo]
     r = subprocess.run(["make", "-C", str(REPO / "firmware/stm32"), "BOARD=nucleo_h743zi",
-                        f"FLASHER={flasher}", "flash"], capture_output=True, text=True)
+                        f"NUCLEO={variant}", f"FLASHER={flasher}", "flash"],
+                       capture_output=True, text=True)
     out = (r.stdout + r.stderr).lower()
     if r.returncode:
         if any(s in out for s in NO_BOARD):
@@ -56,8 +63,8 @@ def cmd_flash_stm32(args: argparse.Namespace) -> int:
                              f"(CN1), check the cable and udev permissions, then retry")
         last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
         raise FlashError(f"{program} failed: {last[0]}")
-    elf = "firmware/stm32/build/nucleo_h743zi/firmware.elf"
-    print(json.dumps({"flashed": elf, "board": "nucleo_h743zi", "tool": program})
+    elf = f"firmware/stm32/build/{build}/firmware.elf"
+    print(json.dumps({"flashed": elf, "board": build, "tool": program})
           if args.json else f"flashed {elf} with {program}")
     return 0
 

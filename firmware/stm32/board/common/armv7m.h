@@ -1,4 +1,4 @@
-/* Cortex-M7 core registers shared by the ARM boards (SCB, SysTick, NVIC, cache), from the ARMv7-M ARM. */
+/* Cortex-M7 core registers shared by the ARM boards (SCB, SysTick, NVIC, MPU, cache), from the ARMv7-M ARM. */
 #ifndef DMDSM_ARMV7M_H
 #define DMDSM_ARMV7M_H
 
@@ -33,6 +33,25 @@
 #define SCB_DCCIMVAC REG32(0xE000EF70u)
 #define DCACHE_LINE 32u
 
+/* MPU (ARMv7-M B3.5): region number, base and attributes/size of the selected region */
+#define MPU_TYPE REG32(0xE000ED90u)
+#define MPU_CTRL REG32(0xE000ED94u)
+#define MPU_RNR REG32(0xE000ED98u)
+#define MPU_RBAR REG32(0xE000ED9Cu)
+#define MPU_RASR REG32(0xE000EDA0u)
+#define MPU_TYPE_DREGION(t) (((t) >> 8) & 0xFFu) /* data regions; 0: no MPU */
+#define MPU_CTRL_ENABLE (1u << 0)
+#define MPU_CTRL_PRIVDEFENA (1u << 2) /* the default map where no region matches */
+#define MPU_RASR_ENABLE (1u << 0)
+#define MPU_RASR_SIZE(log2_bytes) (((log2_bytes) - 1u) << 1) /* region of 2^log2 bytes */
+#define MPU_RASR_SRD(mask) ((uint32_t)(mask) << 8) /* sub-regions (eighths) disabled */
+#define MPU_RASR_B (1u << 16)
+#define MPU_RASR_C (1u << 17)
+#define MPU_RASR_S (1u << 18)
+#define MPU_RASR_TEX(t) ((uint32_t)(t) << 19)
+#define MPU_RASR_AP_NONE (0u << 24) /* no access, privileged or not */
+#define MPU_RASR_XN (1u << 28)
+
 /* SysTick */
 #define SYST_CSR REG32(0xE000E010u)
 #define SYST_RVR REG32(0xE000E014u)
@@ -51,6 +70,7 @@ static inline void nvic_enable(unsigned irq)
     NVIC_ISER(irq / 32u) = 1u << (irq % 32u);
 }
 
+static inline void dmb(void) { __asm__ volatile("dmb 0xF" ::: "memory"); }
 static inline void dsb(void) { __asm__ volatile("dsb 0xF" ::: "memory"); }
 static inline void isb(void) { __asm__ volatile("isb 0xF" ::: "memory"); }
 static inline void irq_disable(void) { __asm__ volatile("cpsid i" ::: "memory"); }

@@ -20,40 +20,36 @@ void board_early_init(void)
         AXI_TARG7_FN_MOD = 1u; /* ES0392 2.2.9 (rev Y and older) before any AXI SRAM access */
 }
 
-static void caches_enable(void)
-{
-    dsb();
-    isb();
-    SCB_ICIALLU = 0;
-    SCB_CCR |= SCB_CCR_IC;
-    SCB_CSSELR = 0; /* L1 data cache */
-    dsb();
-    uint32_t ccsidr = SCB_CCSIDR;
-    uint32_t sets = ((ccsidr >> 13) & 0x7FFFu) + 1u;
-    uint32_t ways = ((ccsidr >> 3) & 0x3FFu) + 1u;
-    for (uint32_t s = 0; s < sets; s++)
-        for (uint32_t w = 0; w < ways; w++)
-            SCB_DCISW = (s << 5) | (w << 30);
-    dsb();
-    SCB_CCR |= SCB_CCR_DC;
-    dsb();
-    isb();
-}
-
-/* LD1 green PB0, LD2 blue PB7, LD3 red PB14 */
-static const unsigned led_pin[3] = {0, 7, 14};
+/*
+ * LD1 green PB0 and LD3 red PB14 on both boards; LD2 blue is PB7 on the
+ * NUCLEO-H743ZI and PE1 on the -ZI2 (make NUCLEO=ZI2 -> DMDSM_NUCLEO_ZI2).
+ */
+#ifdef DMDSM_NUCLEO_ZI2
+#define BOARD "NUCLEO-H743ZI2"
+#define LD2_PORT GPIOE
+#define LD2_PIN 1u
+#else
+#define BOARD "NUCLEO-H743ZI"
+#define LD2_PORT GPIOB
+#define LD2_PIN 7u
+#endif
+static struct gpio *const led_port[3] = {GPIOB, LD2_PORT, GPIOB};
+static const unsigned led_pin[3] = {0, LD2_PIN, 14};
 
 void led_set(unsigned led, bool on)
 {
-    GPIOB->BSRR = on ? 1u << led_pin[led] : 1u << (led_pin[led] + 16u);
+    led_port[led]->BSRR = on ? 1u << led_pin[led] : 1u << (led_pin[led] + 16u);
 }
 
 static void leds_init(void)
 {
-    RCC->AHB4ENR |= RCC_AHB4ENR_GPIOBEN;
-    (void)RCC->AHB4ENR;
-    for (unsigned i = 0; i < 3; i++)
-        GPIOB->MODER = (GPIOB->MODER & ~(3u << (2 * led_pin[i]))) | (1u << (2 * led_pin[i]));
+    RCC->AHB4ENR |= RCC_AHB4ENR_GPIOBEN | RCC_AHB4ENR_GPIOEEN;
+    (void)RCC->AHB4ENR; /* read back: the ports are clocked before the first access */
+    for (unsigned i = 0; i < 3; i++) {
+        struct gpio *port = led_port[i];
+        unsigned pin = led_pin[i];
+        port->MODER = (port->MODER & ~(3u << (2 * pin))) | (1u << (2 * pin));
+    }
 }
 
 /* zlib's CRC-32 on the CRC unit: reflected in (by byte) and out, continued via INIT */
@@ -113,6 +109,7 @@ int main(void)
 {
     wait_init(64000000u); /* HSI after reset: bounded waits from the first one on */
     clock_init();
+    mpu_config(); /* before the D-cache: no speculative reads of external memory */
     caches_enable();
     leds_init();
     RCC->AHB4ENR |= RCC_AHB4ENR_CRCEN;
@@ -121,7 +118,7 @@ int main(void)
     serial_init(DMDSM_BAUD);
     capture_init();
     boot_board_name(board_name, sizeof board_name,
-                    clocks.rev_v ? "NUCLEO-H743ZI rev V" : "NUCLEO-H743ZI rev Y");
+                    clocks.rev_v ? BOARD " rev V" : BOARD " rev Y");
     info = (struct dmdsm_board_info){board_name, clocks.timclk_hz, capture_adc_rate_hz(),
                                      8192u, capture_error()};
     dmdsm_core_init(&core, &ops, &info);

@@ -71,6 +71,7 @@ CHECK_OFFSET(struct rcc, APB4ENR, 0x0F4);
 #define RCC_AHB4ENR_GPIOAEN (1u << 0)
 #define RCC_AHB4ENR_GPIOBEN (1u << 1)
 #define RCC_AHB4ENR_GPIODEN (1u << 3)
+#define RCC_AHB4ENR_GPIOEEN (1u << 4)
 #define RCC_AHB4ENR_CRCEN (1u << 19)
 #define RCC_APB1LENR_TIM2EN (1u << 0)
 #define RCC_APB1LENR_USART3EN (1u << 18)
@@ -141,6 +142,7 @@ CHECK_OFFSET(struct gpio, AFR, 0x20);
 #define GPIOA ((struct gpio *)0x58020000u)
 #define GPIOB ((struct gpio *)0x58020400u)
 #define GPIOD ((struct gpio *)0x58020C00u)
+#define GPIOE ((struct gpio *)0x58021000u)
 
 /* ---------------------------------------------------------------- USART (RM0433 48.8) */
 struct usart {

@@ -14,7 +14,8 @@
  *   PA6  ADC12_INP3      pre-amplified transducer signal (fast channel, 0-3.3 V)
  *   PD8  USART3_TX (AF7) ST-LINK virtual COM port
  *   PD9  USART3_RX (AF7)
- *   PB0  LD1 green (heartbeat), PB7 LD2 blue (armed), PB14 LD3 red (error)
+ *   PB0  LD1 green (heartbeat), PB14 LD3 red (error, boot blink code)
+ *   PB7  LD2 blue (armed) on the NUCLEO-H743ZI, PE1 on the -ZI2 (DMDSM_NUCLEO_ZI2)
  */
 #ifndef DMDSM_BAUD
 #define DMDSM_BAUD 2000000u /* ST-LINK/V2-1 VCP; the -ZI2's STLINK-V3 takes more */
@@ -92,5 +93,9 @@ bool boot_led(uint64_t ms);                /* LD3 state of the blink code at ms 
 
 /* board.c */
 void led_set(unsigned led, bool on);
+
+/* memory.c: ST's MPU background region, then the I- and D-cache */
+void mpu_config(void);
+void caches_enable(void);
 
 #endif

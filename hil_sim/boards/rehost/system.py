@@ -69,9 +69,34 @@ class System(Peripheral):
         self.watches: list[DmaWatch] = []
         self.gen = 0
         self.fpu_on = False
+        self.st_counts, self.st_t, self.st_seen_wraps = 0.0, 0.0, 1
+
+    # ---------------------------------------------------------------- SysTick
+    def _systick(self) -> int:
+        """Counts since the last write of CVR, at the CPU clock (CLKSOURCE = 1) or / 8."""
+        csr = self.regs.get(0x010, 0)
+        now = self.m.t
+        if csr & 1:
+            hz = self.m.cpu_hz / (1 if csr & 4 else 8)
+            self.st_counts += (now - self.st_t) * hz
+        self.st_t = now
+        return int(self.st_counts)
+
+    def _systick_read(self, offset: int) -> int:
+        reload = self.regs.get(0x014, 0) & 0xFFFFFF
+        counts = self._systick()
+        if offset == 0x018:
+            self.m.clock_polled()
+            return 0 if counts == 0 or reload == 0 else reload - (counts - 1) % (reload + 1)
+        wrapped = reload and counts > self.st_seen_wraps * (reload + 1)
+        if wrapped:  # COUNTFLAG: counted to 0 since the last read
+            self.st_seen_wraps = counts // (reload + 1) + 1
+        return self.regs.get(0x010, 0) | ((1 << 16) if wrapped else 0)
 
     # ---------------------------------------------------------------- registers
     def read(self, offset: int) -> int:
+        if offset in (0x010, 0x018):
+            return self._systick_read(offset)
         if 0x100 <= offset < 0x120:
             return sum(1 << b for b in range(32) if 32 * ((offset - 0x100) // 4) + b in
                        self.enabled)
@@ -111,8 +136,12 @@ class System(Peripheral):
             self._invalidate_set((value >> 5) & (DCACHE_SETS - 1))
         elif 0xF00 <= offset < 0xF80 or offset in (0xD84,):
             pass  # I-cache, clean-only operations, CSSELR: no state the model needs
-        elif 0xD90 <= offset <= 0xDA0 or offset in (0xF34, 0xF38, 0x010, 0x014, 0x018):
-            pass  # MPU, FPCCR/FPCAR, SysTick: stored
+        elif offset in (0x010, 0x018):  # SysTick enable / any write of CVR clears it
+            self._systick()
+            if offset == 0x018 or not self.regs.get(0x010, 0) & 1:
+                self.st_counts, self.st_seen_wraps = 0.0, 1
+        elif 0xD90 <= offset <= 0xDA0 or offset in (0xF34, 0xF38, 0x014):
+            pass  # MPU, FPCCR/FPCAR, SysTick reload: stored
         elif 0x400 <= offset < 0x4F0 or offset in (0xD08, 0xD20, 0xD24, 0xD28, 0xD2C):
             pass  # priorities, VTOR, SHPR, fault status: stored
         else:

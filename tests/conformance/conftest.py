@@ -29,6 +29,7 @@ def sensor_url(request):
             yield qemu.url
     else:
         sim = Simulation(SimConfig(sensor_firmware="nucleo"))
+        sim.advance(0.02)  # boot first: bytes reaching USART3 before it is enabled are lost
         server = PtyServer(sim)
         thread = threading.Thread(target=server.serve_forever, daemon=True)
         thread.start()

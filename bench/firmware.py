@@ -156,7 +156,7 @@ def main() -> int:
         for n in (1024, 8192):
             for avg in (1, 16):
                 rate, drops = qemu_rate(q.url, n, avg, seconds=3.0)
-                r = rehost_rate(n, avg, seconds=0.5)
+                r = rehost_rate(n, avg, seconds=1.0)
                 if r["violation"] is not None:
                     print(f"rehosted NUCLEO halted: {r['violation']}")
                     return 1
@@ -165,7 +165,7 @@ def main() -> int:
                       f"{r['integrity']:>9} {r['overruns']:>8} {r['wall_per_sim']:>8.1f}")
     print("\nQEMU and the rehost: 1 kHz emulated laser, so 1000 shots/s is the ceiling there; "
           "drops mean the link, not the capture, is the limit (each drop is reported in the "
-          "waveform stream). The rehost's rate is in simulated time over 0.5 s; wall/sim is "
+          "waveform stream). The rehost's rate is in simulated time over 1 s; wall/sim is "
           "the host seconds it took per simulated second.")
     return 0
 

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 
 VREG_START_S, CAL_S, ADRDY_S = 10e-6, 200e-6, 2e-6
 DMAMUX_REQ_ADC1 = 9
+RS_BITS = (1 << 31) | 0x3F  # ADC_CR bits the software can only set (RM0433 25.6.3)
 MAX_BATCH = 1 << 16  # conversions materialised per catch-up (more than any DMA ring)
 SAMPLING_CYCLES = (1.5, 2.5, 8.5, 16.5, 32.5, 64.5, 387.5, 810.5)
 
@@ -100,6 +101,13 @@ class Adc(Peripheral):
 
     def _cr(self, old: int, new: int) -> None:
         t, pc = self.m.t, self.m.pc()
+        new |= old & RS_BITS  # ADEN, ADDIS, ADSTART, ADSTP, ADCAL: writing 0 does nothing
+        if new & 2 and not old & 2:  # ADDIS
+            if old & 4:
+                self.m.violation("adc-disable-while-converting",
+                                 f"ADDIS with ADSTART = 1 (pc 0x{pc:08x}); stop it first")
+            new &= ~(1 | 2)
+            self.rdy_at = math.inf
         if old >> 31 and t >= self.cal_end:
             old &= ~(1 << 31)
             self.calibrated = True

@@ -23,7 +23,13 @@ from unicorn import (
     Uc,
     UcError,
 )
-from unicorn.arm_const import UC_ARM_REG_PC, UC_ARM_REG_SP, UC_ARM_REG_XPSR, UC_CPU_ARM_CORTEX_M7
+from unicorn.arm_const import (
+    UC_ARM_REG_PC,
+    UC_ARM_REG_PRIMASK,
+    UC_ARM_REG_SP,
+    UC_ARM_REG_XPSR,
+    UC_CPU_ARM_CORTEX_M7,
+)
 
 from .adc import Adc
 from .bus import Peripheral, Plain, RuleViolation
@@ -121,6 +127,7 @@ class H743:
         self.uc.mmio_map(0xE0000000, 0x100000, self._read, 0xE0000000, self._write,
                          0xE0000000)
         self.stopped = False
+        self.irq_soon = False  # an interrupt became pending during the slice
         self._reset_reason: str | None = None
         self._fpu_hook: int | None = None
         self._error: BaseException | None = None
@@ -245,7 +252,12 @@ class H743:
         return self.rcc.cpu_hz()
 
     def clock_polled(self) -> None:
-        """The firmware read its clock; with no other action since the last reads, it idles."""
+        """The firmware read its clock; with no other action since the last reads, it idles.
+        A pending interrupt the CPU may take also ends the slice here."""
+        if self.irq_soon and not self.uc.reg_read(UC_ARM_REG_PRIMASK) & 1:
+            self.irq_soon = False
+            self.stop_slice()
+            return
         if self.actions == self._actions_seen:
             self._quiet += 1
             if self._quiet >= 3:

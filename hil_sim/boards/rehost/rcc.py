@@ -68,6 +68,7 @@ class Rcc(Peripheral):
         old = self.regs.get(offset, 0)
         self.action()
         self._cpu_hz = None
+        self._timclk.clear()
         if offset == 0x000:
             self._oscillators(old, value)
         elif offset in (0x028, 0x02C, 0x030, 0x038):
@@ -166,12 +167,9 @@ class Rcc(Peripheral):
 
     def timclk(self, apb: int) -> float:
         """Timer kernel clock on APB1/APB2 (Hz): 2 x PCLK when the APB prescaler is > 1."""
-        if self._cpu_hz is None:
-            self._timclk.clear()
-        if apb not in self._timclk:
+        if apb not in self._timclk:  # cleared by every RCC write
             code = field(self.regs[0x01C], 4 if apb == 1 else 8, 3)
             self._timclk[apb] = self.pclk(apb) * (2 if _apb_div(code) > 1 else 1)
-            self.cpu_hz()
         return self._timclk[apb]
 
     def adc_hz(self) -> float:

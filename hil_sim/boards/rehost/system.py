@@ -212,8 +212,11 @@ class System(Peripheral):
         self._maybe_take()
 
     def _maybe_take(self) -> None:
+        """An enabled interrupt is pending: the slice ends at the firmware's next clock read
+        (a load with no side effect, safe to repeat: unicorn re-runs the load that stops it)
+        unless PRIMASK holds it off; in any case it is taken at the next slice boundary."""
         if self.active == 0 and any(e - 16 in self.enabled for e in self.pending):
-            self.m.stop_slice()
+            self.m.irq_soon = True
 
     def take_pending(self) -> None:
         """Enter the highest-priority pending, enabled exception, if the CPU may take it."""

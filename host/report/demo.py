@@ -288,6 +288,23 @@ def stage_classify(d: Demo) -> Section:
     return sec
 
 
+def keep_previous_databases(out: Path) -> None:
+    """Each demo scans into fresh databases: a previous run's `db` and `validation` move to
+    out/previous/<name>-<time of their last change>, so the classifier never mixes runs (or
+    sample rates) and nothing a user may want is deleted."""
+    for name in ("db", "validation"):
+        old = out / name
+        if old.is_dir() and not old.is_symlink():
+            stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(old.stat().st_mtime))
+            target = out / "previous" / f"{name}-{stamp}"
+            n = 1
+            while target.exists():
+                n += 1
+                target = out / "previous" / f"{name}-{stamp}-{n}"
+            target.parent.mkdir(exist_ok=True)
+            old.rename(target)
+
+
 def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = False,
              speed: float = 8.0, as_json: bool = False) -> int:
     """Run every stage through `command` (the `dmdsm` entry point: argv -> exit code), write
@@ -296,6 +313,7 @@ def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = Fa
     say = sys.stderr if as_json else sys.stdout
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    keep_previous_databases(out)
     t_all = time.perf_counter()
     d = Demo(out, quick, speed, command)
     sections: list[Section] = []

@@ -26,6 +26,7 @@ from .h743 import H743
 REPO = Path(__file__).resolve().parents[3]
 NUCLEO_ELF = REPO / "firmware/stm32/build/nucleo_h743zi/firmware.elf"
 PULSE_S = 100e-9
+POWER_ON_S = 0.02  # the firmware runs this long before the simulation's time 0
 Pose = Callable[[float], tuple[np.ndarray, float]]
 
 
@@ -83,6 +84,9 @@ class RehostedSensor:
         self.shots = 0
         self._hit_cache: tuple[tuple, Hit] | None = None
         self._shot_cache: dict[tuple, tuple[int, np.ndarray]] = {}
+        # powered on before anyone connects: bytes sent before USART3 is enabled (at about
+        # 0.6 ms) would be lost, as on a board still in reset
+        self._run(POWER_ON_S)
 
     # ---------------------------------------------------------------- Simulation interface
     def sampling(self) -> bool:

@@ -20,6 +20,7 @@ import numpy as np
 
 from ...physics.scene import Hit, Scene
 from ...physics.signals import SensorModel, synthesize, to_adc
+from ..sensor import SensorBoard
 from .bus import RuleViolation
 from .h743 import H743
 
@@ -114,13 +115,7 @@ class RehostedSensor:
         self.now = max(self.now, now)
 
     # ---------------------------------------------------------------- physics
-    def hit(self, t: float) -> Hit:
-        """What the beam sees at time t (cached while the pose does not change)."""
-        S, theta = self.pose(t)
-        key = (tuple(np.round(S, 6)), round(theta, 6))
-        if self._hit_cache is None or self._hit_cache[0] != key:
-            self._hit_cache = (key, self.scene.cast(np.asarray(S), theta))
-        return self._hit_cache[1]
+    hit = SensorBoard.hit  # what the beam sees at time t, cached while the pose holds
 
     def analog(self, ks: np.ndarray, times: np.ndarray, grid: tuple[float, float]) -> np.ndarray:
         """ADC codes for conversions ks at times (s) on the grid (TIM8 start, period)."""

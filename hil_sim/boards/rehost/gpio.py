@@ -85,15 +85,14 @@ class Crc(Peripheral):
     def write(self, offset: int, value: int, size: int = 4) -> None:
         if offset == 0x00:
             cr = self.regs.get(0x08, 0)
-            if field(cr, 3, 2) != 0:
-                raise NotImplementedError("CRC POLYSIZE other than 32 bits")
             rev = field(cr, 5, 2)
+            if field(cr, 3, 2) != 0 or rev >= 2:  # the firmware uses 32 bits, REV_IN by byte
+                self.m.violation("unmodelled-register",
+                                 f"CRC_CR 0x{cr:02x}: only a 32-bit polynomial with input "
+                                 f"reversed by byte or not at all is modelled")
+                return
             data = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "big")
             lut, c = self._lut(), self.state
-            if rev == 3 or rev == 2:
-                raise NotImplementedError("CRC REV_IN by half-word/word")
-            if size == 4 and rev == 1:
-                data = (value & 0xFFFFFFFF).to_bytes(4, "little")[::-1]
             for b in data:
                 if rev == 1:
                     b = int(f"{b:08b}"[::-1], 2)

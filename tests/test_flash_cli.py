@@ -11,7 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(tmp_path, *args, fake_tool=None, target="stm32"):
     bindir = tmp_path / "bin"
     bindir.mkdir(exist_ok=True)
-    for tool in ("make", "arm-none-eabi-gcc", "arm-none-eabi-objcopy", "arm-none-eabi-size"):
+    for tool in ("make", "mkdir", "arm-none-eabi-gcc", "arm-none-eabi-objcopy",
+                 "arm-none-eabi-size"):
         real = subprocess.run(["which", tool], capture_output=True, text=True).stdout.strip()
         if real:
             (bindir / tool).symlink_to(real)

@@ -63,7 +63,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
         print(f"sensor board: {ports['sensor']}\nstage board:  {ports['stage']}\n"
               f"scene {args.scene}, seed {args.seed}, speed x{args.speed:g}; Ctrl-C stops",
               flush=True)
+    # Ctrl-C and SIGTERM set the stop flag rather than raise: an exception raised inside a
+    # unicorn MMIO callback (the rehosted board) is swallowed by ctypes and the stop was lost
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    signal.signal(signal.SIGINT, lambda *_: server.stop())
     if args.sensor_firmware:
         threading.Thread(target=_watch_rules, args=(sim, server), daemon=True).start()
     try:

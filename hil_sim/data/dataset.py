@@ -27,7 +27,7 @@ from dmdsm.host.scan.scanfile import PHASES, ScanWriter
 from ..boards.sensor import ADC_RATE_HZ, TICK_HZ
 from ..physics.objects import HOUSEHOLD, bounding_size, household
 from ..physics.scene import Scene, table_frame
-from ..physics.signals import SensorModel, synthesize, to_adc
+from ..physics.signals import MATERIALS, SensorModel, received, synthesize, to_adc
 
 US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
 LINE = 8  # points per raster line
@@ -39,8 +39,11 @@ def true_setup(model: SensorModel) -> RangingSetup:
     c = model.c_mm_us * 1e6
     cals = {"oa": RangeCal("oa", model.t0_oa_us * 1e-6, c, 0, 0, 0, 0),
             "us": RangeCal("us", model.t0_us_us * 1e-6, c, 0, 0, 0, 0)}
-    tmpl = {"oa": gaussian_pulse(fs, 1.1e6, 0.8), "us": gaussian_pulse(fs, model.us_fc_mhz *
-                                                                          1e6, model.us_bw)}
+    # the received pulses: aluminium's OA and the US echo, through the receive chain
+    oa = received(model, MATERIALS["aluminium"].oa_fc_mhz, MATERIALS["aluminium"].oa_bw, "oa")
+    us = received(model, model.us_fc_mhz, model.us_bw, "us")
+    tmpl = {"oa": gaussian_pulse(fs, oa[0] * 1e6, oa[1]),
+            "us": gaussian_pulse(fs, us[0] * 1e6, us[1])}
     return RangingSetup(fs, tmpl, {"oa": (0, 1024), "us": (0, 1024)}, cals)
 
 

@@ -102,8 +102,11 @@ def record(seed: int, plan_kw: dict | None = None, v: np.ndarray = TABLE_I_V,
     setup = true_setup(rig.model)
     vv = scene.v / np.linalg.norm(scene.v)
     frame = table_frame(scene.n)
-    tip = scene.X_R + frame @ np.array([0.0, -10.0, 20.0]) - 6 * vv
-    fil = scene.X_R + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * vv
+    # where a user would aim: near the tip and the filament, at an unknown phase of the
+    # raster (a start placed on the true centre would hide the raster's quantisation)
+    aim = np.random.default_rng([seed, 7]).uniform(-0.05, 0.05, (2, 3))
+    tip = scene.X_R + frame @ np.array([0.0, -10.0, 20.0]) - 6 * vv + aim[0]
+    fil = scene.X_R + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * vv + aim[1]
     kw = dict(plan_kw or {})
     plan = RigPlan(tip_start=tuple(np.round(tip, 3)),
                    edge_start=(round(fil[0], 3), round(fil[1], 3), 0.0), **kw)

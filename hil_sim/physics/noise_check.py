@@ -12,7 +12,7 @@ import numpy as np
 
 from .objects import aluminium_block
 from .scene import Scene
-from .signals import SensorModel, _pulse, arrival_times_us, synthesize
+from .signals import SensorModel, _pulse, arrival_times_us, received, synthesize
 
 FS_MHZ = 240.0 / 72  # the NUCLEO's sample rate
 
@@ -41,7 +41,7 @@ def depth_errors(n_points: int = 200, seed: int = 0, material: str = "aluminium"
                                       model.us_bw)):
             taus = t_true + grid
             win = np.abs(t_us - t_true) < 8.0  # samples that can hold the pulse
-            tmpl = _pulse(t_us[win][None, :] - taus[:, None], fc, bw)
+            tmpl = _pulse(t_us[win][None, :] - taus[:, None], *received(model, fc, bw, kind))
             tau = taus[np.argmax(tmpl @ x[win])]
             scale = c if kind == "oa" else c / 2
             errs[kind].append((tau - t_true) * scale)

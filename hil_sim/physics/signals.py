@@ -24,7 +24,8 @@ def speed_of_sound_mm_us(temperature_c: float) -> float:
 
 @dataclass(frozen=True)
 class Material:
-    """Acoustic and optical behaviour of one material (amplitudes in ADC counts at 10 mm)."""
+    """Acoustic and optical behaviour of one material (amplitudes: the received pulse's peak in
+    ADC counts at 10 mm; oa_fc_mhz/oa_bw: the emitted OA pulse, before the receive chain)."""
 
     oa: bool                 # absorbs the laser: an OA arrival exists (not transparent/mirror)
     us: bool                 # reflects sound: a US echo exists (not porous)
@@ -72,7 +73,8 @@ class SensorModel:
     t0_oa_us: float = 2.0     # trigger-to-OA-emission delay (electronics, transducer)
     t0_us_us: float = 4.0     # trigger-to-US-emission delay (laser-driven transmitter)
     us_fc_mhz: float = 1.0    # transducer centre frequency
-    us_bw: float = 0.6        # fractional -6 dB bandwidth
+    us_bw: float = 0.6        # fractional -6 dB bandwidth of the pulse-echo (two-way) chain
+    aa_cutoff_mhz: float = 1.25  # front end's anti-alias low-pass, -3 dB (Gaussian, linear phase)
     bang_amp: float = 2500.0  # transmitter direct coupling at t0_US
     bang_decay_us: float = 2.0
     spread_mm: float = 20.0   # amplitude ~ 1 / (1 + d / spread_mm)
@@ -87,6 +89,32 @@ class SensorModel:
     def c_mm_us(self) -> float:
         """Speed of sound at the model's air temperature (mm/us)."""
         return speed_of_sound_mm_us(self.temperature_c)
+
+
+FWHM = 2 * np.sqrt(2 * np.log(2))  # -6 dB full width of a Gaussian amplitude spectrum / sigma
+
+
+def through(fc: float, bw: float, pass_fc: float, pass_sigma: float) -> tuple[float, float]:
+    """(centre MHz, fractional -6 dB bandwidth) of a Gaussian-modulated pulse (fc MHz, bw)
+    after a Gaussian pass band centred at pass_fc with std pass_sigma (MHz; pass_fc = 0: a
+    low-pass). A product of Gaussian spectra is Gaussian, so the received pulse keeps the
+    form and is computed exactly."""
+    sig = bw * fc / FWHM
+    centre = (fc * pass_sigma ** 2 + pass_fc * sig ** 2) / (sig ** 2 + pass_sigma ** 2)
+    width = sig * pass_sigma / np.sqrt(sig ** 2 + pass_sigma ** 2)
+    return float(centre), float(width * FWHM / centre)
+
+
+def received(model: SensorModel, fc: float, bw: float, kind: str) -> tuple[float, float]:
+    """The pulse (centre MHz, bw) the ADC sees for a pulse of fc MHz, bw: an OA pulse through
+    the transducer's one-way receive band (the same ring transducer, paper SIII-1; the two-way
+    chain us_fc/us_bw is its square, so one way is sqrt(2) wider), then every arrival through
+    the anti-alias low-pass. Without them a 1.6 MHz OA pulse aliases at 3.3 MS/s and its
+    arrival moves by ~80 ns with the sampling phase."""
+    if kind == "oa":
+        fc, bw = through(fc, bw, model.us_fc_mhz, np.sqrt(2) * model.us_bw * model.us_fc_mhz
+                         / FWHM)
+    return through(fc, bw, 0.0, model.aa_cutoff_mhz / np.sqrt(np.log(2)))
 
 
 def _pulse(t_us: np.ndarray, fc: float, bw: float) -> np.ndarray:
@@ -115,7 +143,8 @@ def arrival_times_us(d_mm: float, model: SensorModel) -> tuple[float, float]:
 def synthesize(hit: Hit, model: SensorModel, t_us: np.ndarray, rng: np.random.Generator,
                seed: int = 0) -> np.ndarray:
     """Analog waveform (counts about 0) at sample times t_us after the laser edge."""
-    x = model.bang_amp * _pulse(t_us - model.t0_us_us, model.us_fc_mhz, model.us_bw)
+    x = model.bang_amp * _pulse(t_us - model.t0_us_us,
+                                *received(model, model.us_fc_mhz, model.us_bw, "us"))
     x *= np.exp(-np.clip(t_us - model.t0_us_us, 0, None) / model.bang_decay_us)
     for ret in (hit, *hit.later):
         _add_return(x, ret, model, t_us, rng, seed)
@@ -139,7 +168,7 @@ def _add_return(x: np.ndarray, hit: Hit, model: SensorModel, t_us: np.ndarray,
         amp = mat.oa_amp * hit.overlap * spread * np.sqrt(hit.cos_incidence)
         amp *= rng.lognormal(0, var)
         fc = mat.oa_fc_mhz * (1 + rng.normal(0, var / 3))
-        x += amp * _pulse(t_us - (model.t0_oa_us + d / c), fc, mat.oa_bw)
+        x += amp * _pulse(t_us - (model.t0_oa_us + d / c), *received(model, fc, mat.oa_bw, "oa"))
     if mat.us:
         d = hit.d + roughness(hit, mat.roughness_us_mm, "us", seed)
         angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
@@ -148,7 +177,7 @@ def _add_return(x: np.ndarray, hit: Hit, model: SensorModel, t_us: np.ndarray,
         amp *= rng.lognormal(0, var)
         fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, var / 3))
         tau = t_us - (model.t0_us_us + 2 * d / c)
-        echo = _pulse(tau, fc, model.us_bw)
+        echo = _pulse(tau, *received(model, fc, model.us_bw, "us"))
         if mat.ring_gain:
             ring = np.where(tau > 0, np.exp(-tau / mat.ring_decay_us), 0.0)
             echo += mat.ring_gain * (1 + rng.normal(0, var)) * ring * np.sin(

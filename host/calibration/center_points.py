@@ -33,13 +33,72 @@ def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: floa
     return np.where(total > 0, (w * depth).sum(axis=1) / np.maximum(total, 1e-300), 0.0)
 
 
+def _spot_samples(spot_radius_mm: float) -> np.ndarray:
+    """Points (k, 2) spread evenly over the laser spot's disk (mm): an 11 x 11 grid inside it."""
+    g = (np.arange(11) - 5) / 5.0
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    return spot_radius_mm * xy[(xy ** 2).sum(axis=1) <= 1.0]
+
+
+def _profile(P: np.ndarray, c: np.ndarray, spot: np.ndarray, target: str, r: float
+             ) -> np.ndarray:
+    """Model amplitude (draws, n) at raster positions P (n, k) for target centres c
+    (draws, k): the share of the spot on the target, a cylinder's side weighted by
+    sqrt(cos) of the incidence (the OA signal falls as the light arrives obliquely)."""
+    rel = P[None, :, None, :] - c[:, None, None, :] + spot[None, None, :, :]
+    if target == "strip":
+        on = np.sqrt(np.sqrt(np.clip(1 - (rel[..., 0] / r) ** 2, 0, None)))
+    else:
+        on = ((rel ** 2).sum(-1) < r * r).astype(float)
+    return on.mean(axis=2)
+
+
+def raster_centroid_cov(P: np.ndarray, amp: np.ndarray, threshold: float, target: str,
+                        radius_mm: float, spot_radius_mm: float, draws: int = 400
+                        ) -> np.ndarray:
+    """Covariance (k, k) mm^2 of the center point of raster positions P (n, k; the raster's
+    own plane, k = 1 or 2 axes) above threshold x max amplitude, over the raster's unknown
+    phase: the amplitude is the share of the spot (uniform disk) on the target, a disk of
+    radius_mm seen end on ("disk": the tip) or a strip of half-width radius_mm ("strip": a
+    filament swept across), with the relative amplitude noise the measured amplitudes `amp`
+    (n,) show about that profile, which moves points across the threshold. The raster and
+    the noise, not the points' spread / n, set how far a thresholded centroid moves."""
+    P = np.asarray(P, float)
+    k = P.shape[1]
+    steps = []
+    for j in range(k):
+        u = np.unique(np.round(P[:, j], 4))
+        dif = np.diff(u)
+        steps.append(float(np.median(dif[dif > 1e-4])) if (dif > 1e-4).any() else 0.0)
+    spot = _spot_samples(max(spot_radius_mm, 1e-3))[:, :k]
+    r = max(radius_mm, 0.05)
+    rng = np.random.default_rng(0)  # a fixed design sum: the same data give the same result
+    c = P.mean(axis=0) + (rng.random((draws, k)) - 0.5) * np.asarray(steps)
+    amp = np.asarray(amp, float)
+    kept = amp >= threshold * amp.max()
+    prof = _profile(P, P[kept].mean(axis=0)[None], spot, target, r)[0]
+    gain = float(prof @ amp / max(prof @ prof, 1e-12))
+    near = prof > 0.25 * prof.max()
+    # robust (median) scale: the profile is a model, and its misfit at the target's rim
+    # would pass for noise
+    rel = (amp[near] / gain - prof[near]) / prof[near]
+    rel_noise = float(np.clip(1.4826 * np.median(np.abs(rel)) if near.any() else 0.0, 0, 0.5))
+    amp = _profile(P, c, spot, target, r) * (1 + rel_noise * rng.standard_normal((draws, len(P))))
+    keep = amp >= threshold * amp.max(axis=1, keepdims=True)
+    cnt = np.maximum(keep.sum(axis=1), 1)
+    err = (keep[..., None] * P[None]).sum(axis=1) / cnt[:, None] - c
+    return err.T @ err / draws
+
+
 def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
-            radius_mm: float = 0.0, spot_radius_mm: float = 0.0
+            radius_mm: float = 0.0, spot_radius_mm: float = 0.0, target: str = "strip"
             ) -> tuple[np.ndarray, float, np.ndarray, float] | None:
     """Center point of the ranged raw points above threshold x max amplitude (§IV-C), or
-    None with fewer than MIN_POINTS. With a filament radius the points are a sweep across a
-    filament: each depth is moved from the ranged front surface onto the axis
-    (front_depth_mm of its offset from the sweep's centre)."""
+    None with fewer than MIN_POINTS. With a filament radius and target "strip" the points
+    are a sweep across a filament: each depth is moved from the ranged front surface onto
+    the axis (front_depth_mm of its offset from the sweep's centre). The lateral covariance
+    is the raster's (raster_centroid_cov) in the raster's plane and the points' spread / n
+    out of it (stage noise)."""
     ok = np.isfinite(d) & np.isfinite(amp) & np.isfinite(S).all(axis=1)
     if not ok.any():
         return None
@@ -48,10 +107,21 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
     if n < MIN_POINTS:
         return None
     Sk, dk = S[keep], d[keep]
-    if radius_mm > 0:
+    if radius_mm > 0 and target == "strip":
         _, _, vt = np.linalg.svd(S[ok] - S[ok].mean(axis=0))  # the sweep direction
         dk = dk + front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm)
-    return Sk.mean(axis=0), float(dk.mean()), np.cov(Sk.T) / n, float(np.var(dk, ddof=1) / n)
+    spread = np.cov(Sk.T) / n
+    # the raster's plane: the stage axes it steps along (a square raster has no SVD axes)
+    span = np.ptp(S[ok], axis=0)
+    U = np.eye(3)[:, span > max(0.2 * span.max(), 1e-3)]  # (3, k)
+    if U.shape[1] in (1, 2) and spot_radius_mm > 0:
+        out = np.eye(3) - U @ U.T
+        Q = raster_centroid_cov((S[ok] - S[ok].mean(axis=0)) @ U, amp[ok], threshold, target,
+                                radius_mm, spot_radius_mm)
+        cov = U @ Q @ U.T + out @ spread @ out
+    else:
+        cov = spread
+    return Sk.mean(axis=0), float(dk.mean()), cov, float(np.var(dk, ddof=1) / n)
 
 
 def _edge_angles(frames: list[float], thetas: list[float]) -> None:
@@ -81,7 +151,8 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
     is_tip, is_edge = sel & (raw["step"] == "tip"), sel & (raw["step"] == "edge")
     for f in np.unique(raw["frame"][is_tip]):
         m = is_tip & (raw["frame"] == f)
-        c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
+        c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold, radius_mm,
+                    spot_radius_mm, target="disk")
         if c is not None:
             tips.append(c)
     if len(tips) < 2:

@@ -191,12 +191,12 @@ class CalibrationResult:
     # per center point at the solution: tip (k, 3) mm from the fitted tip; edge (m,) mm
     # from the fitted filament line; theta_deg (F,) fitted minus read table angle
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
-    # factor on the center points' lateral covariances (Sigma_P / n), from the residuals: a
-    # raster's centroid scatters less (or more) than its points' spread / n
+    # factor on the tips' center points' lateral covariances (the raster model, see
+    # center_points.raster_centroid_cov), from the residuals
     lateral_scale: float = 1.0
 
 
-SCALE_PRIOR_DOF = 4.0  # the declared lateral covariances (scale 1) count as this many
+SCALE_PRIOR_DOF = 4.0
 # residuals: a scale from ~14 residuals alone falls below 0.2 in about one seed of a
 # thousand, and the reported stds with it (a conjugate inverse-gamma prior)
 
@@ -241,7 +241,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
         return v, n, xr, q, pt, tip, th
 
     extra = [0.0, 0.0]  # variances (mm^2) added to each tip and edge depth: see below
-    scale = [1.0]  # factor on the center points' lateral covariances (tips and edges)
+    scale = [1.0, 1.0]  # factors on the tips' and the edges' lateral covariances
 
     def residuals(p: np.ndarray, whiten: bool = True, depth: bool = False) -> np.ndarray:
         """Whitened residuals; depth=True: the tips' and the edges' unwhitened residuals
@@ -271,7 +271,7 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
             B = tangent_basis(li)
             perp = (rel - np.outer(rel @ li, li)) @ B  # across the line
             cS = np.einsum("ai,kab,bj->kij", B, edge_cS[sel], B)
-            cov = scale[0] * cS + edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
+            cov = scale[1] * cS + edge_vd[sel, None, None] * np.outer(B.T @ v, B.T @ v)
             if depth:
                 e = unit(B.T @ v)
                 r.append(perp @ e)
@@ -305,16 +305,14 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
         new = [max(0.0, float(np.sum(r ** 2) / (len(r) - k) - np.mean(var)))
                if len(r) > k else 0.0
                for r, var, k in ((res[0], res[1], 1), (res[2], res[3], 4))]
-        # the lateral covariances (Sigma_P / n of the raster points above threshold, §IV-C)
-        # are scaled to their residuals: a centroid of fixed raster positions moves only as
-        # points cross the threshold, far less than the points' spread / n says;
-        # one factor for both (both are centroids of raster points above a threshold):
-        # pooled over tips and edges it has ~14 degrees of freedom, where the tips' own 4
-        # would let it collapse towards 0 in one seed of a hundred
+        # the lateral covariances (the raster model of a thresholded centroid, with the
+        # amplitude noise the rasters show) are scaled to their residuals, tips and edges
+        # each by its own factor: the model's profile is not the sensor's, and a tip's
+        # centroid is a 2-D raster's, an edge's a 1-D sweep's; SCALE_PRIOR_DOF keeps the
+        # tips' 4 degrees of freedom from collapsing the factor in an unlucky seed
         k, m = len(data.tip_d), len(data.edge_d)
-        dof = (2 * k - 4) + (m - 2 * F)
-        new_scale = [min(max((sum(res[4]) + SCALE_PRIOR_DOF) / (dof + SCALE_PRIOR_DOF), 0.01),
-                         100.0)]
+        new_scale = [min(max((chi + SCALE_PRIOR_DOF) / (d + SCALE_PRIOR_DOF), 0.01), 100.0)
+                     for chi, d in ((res[4][0], 2 * k - 4), (sum(res[4][1:]), m - 2 * F))]
         if not scatter_from_residuals:
             break
         if all(abs(a - b) <= 0.02 * max(a, b) + 1e-14 for a, b in zip(new, extra)) and \
@@ -325,6 +323,14 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
     v, n, xr, *_ = unpack(sol.x)
     J = sol.jac
     cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
+    # heavy-tailed surface scatter on a few high-leverage points (both ends of an edge
+    # frame) hides in the fit: where the residuals, leverage-corrected (the HC3 sandwich),
+    # show more scatter than the model's covariance, that parameter's std is widened to it
+    h = np.einsum("ij,jk,ik->i", J, cov_p, J)
+    meat = (J * (sol.fun / np.maximum(1 - h, 1e-3))[:, None] ** 2).T @ J
+    widen = np.sqrt(np.maximum(np.diag(cov_p @ meat @ cov_p) /
+                               np.maximum(np.diag(cov_p), 1e-300), 1.0))
+    cov_p = cov_p * np.outer(widen, widen)
     # to Cartesian: v, n via their tangent bases, X_R x y
     Jv = np.zeros((9, len(sol.x)))
     Jv[0:3, 0:2] = Bv

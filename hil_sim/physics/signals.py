@@ -42,25 +42,28 @@ class Material:
     roughness_us_mm: float = 0.19  # Gaussian sigma (US)
 
 
-#: defaults; apple is deliberately close to plastic but far more variable (paper Fig. 5)
+#: defaults; apple is deliberately close to plastic but far more variable (paper Fig. 5). The
+#: OA centre frequencies are the emitted ones, chosen so that the received centres (after the
+#: receive chain, `received`) stay where the materials were tuned: aluminium 1.1 MHz, plastic
+#: 0.9, apple 0.85, paper 0.7, foam 0.5 (graphite's 1.6 MHz cannot pass the band: 1.14)
 MATERIALS: dict[str, Material] = {
     "graphite": Material(oa=True, us=True, oa_amp=9000, oa_fc_mhz=1.6, us_amp=1500,
                          variability=0.05),
-    "aluminium": Material(oa=True, us=True, oa_amp=2500, oa_fc_mhz=1.1, us_amp=7000,
+    "aluminium": Material(oa=True, us=True, oa_amp=2500, oa_fc_mhz=1.24, us_amp=7000,
                           ring_fc_mhz=0.55, ring_gain=0.25, ring_decay_us=6.0),
     "steel": Material(oa=False, us=True, us_amp=7500, ring_fc_mhz=0.75, ring_gain=0.35,
                       ring_decay_us=8.0),
     "glass": Material(oa=False, us=True, us_amp=6500, us_fc_scale=1.05, ring_fc_mhz=0.9,
                       ring_gain=0.5, ring_decay_us=5.0),
-    "plastic": Material(oa=True, us=True, oa_amp=3500, oa_fc_mhz=0.9, us_amp=4500,
+    "plastic": Material(oa=True, us=True, oa_amp=3500, oa_fc_mhz=0.84, us_amp=4500,
                         us_fc_scale=0.95, ring_fc_mhz=0.35, ring_gain=0.15, ring_decay_us=2.0,
                         variability=0.10),
-    "apple": Material(oa=True, us=True, oa_amp=3200, oa_fc_mhz=0.85, us_amp=4000,
+    "apple": Material(oa=True, us=True, oa_amp=3200, oa_fc_mhz=0.77, us_amp=4000,
                       us_fc_scale=0.9, ring_fc_mhz=0.35, ring_gain=0.12, ring_decay_us=1.5,
                       variability=0.30),
-    "paper": Material(oa=True, us=True, oa_amp=4000, oa_fc_mhz=0.7, us_amp=3000,
+    "paper": Material(oa=True, us=True, oa_amp=4000, oa_fc_mhz=0.60, us_amp=3000,
                       us_fc_scale=0.8, variability=0.12),
-    "foam": Material(oa=True, us=False, oa_amp=2000, oa_fc_mhz=0.5, oa_bw=1.0,
+    "foam": Material(oa=True, us=False, oa_amp=2000, oa_fc_mhz=0.39, oa_bw=1.0,
                      variability=0.15),
 }
 

@@ -77,21 +77,23 @@ def test_center_points_lateral_covariance_matches_their_true_scatter(recordings)
     """The raster model of a thresholded centroid (raster_centroid_cov) against the truth: the
     tip centers' scatter across the beam and the edge centers' across the filament agree with
     the declared std within 1.6x (Sigma_P / n, the points' spread / n, claimed ~3x)."""
+    from dmdsm.sim.physics.objects import rig_horizontal, rig_vertical
     from dmdsm.sim.physics.scene import rodrigues, table_frame
 
+    horizontal, vertical = rig_horizontal()[0].shape, rig_vertical()[0].shape
+    tip_local = horizontal.center - horizontal.half_length * horizontal.R[:, 2]  # toward -y
     tip_err, tip_sd, edge_err, edge_sd = [], [], [], []
     for rows, truth in recordings:
         data = center_points(as_raw(rows))
         v, n, X_R = (np.array(truth[k]) for k in ("v", "n", "X_R"))
         B = table_frame(n)
-        rel = data.tip_S - (X_R + B @ np.array([0.0, -10.0, 20.0]))  # rig_horizontal's tip
+        rel = data.tip_S - (X_R + B @ tip_local)
         tip_err += list((rel - np.outer(rel @ v, v))[:, [0, 2]].ravel())
         tip_sd += list(np.sqrt(data.tip_cov_S[:, [0, 2], [0, 2]]).ravel())
         w = np.cross(n, v) / np.linalg.norm(np.cross(n, v))  # across the filament and beam
         for f in np.unique(data.edge_frame):
             sel = data.edge_frame == f
-            axis = X_R + rodrigues(n, np.radians(data.theta_deg[int(f)])) @ B @ np.array(
-                [25.0, 0.0, 0.0])  # rig_vertical's axis
+            axis = X_R + rodrigues(n, np.radians(data.theta_deg[int(f)])) @ B @ vertical.center
             edge_err += list((data.edge_S[sel] + data.edge_d[sel, None] * v - axis) @ w)
             edge_sd += list(np.sqrt(data.edge_cov_S[sel, 0, 0]))
     for err, sd in ((tip_err, tip_sd), (edge_err, edge_sd)):

@@ -45,11 +45,13 @@ def _profile(P: np.ndarray, c: np.ndarray, spot: np.ndarray, target: str, r: flo
     """Model amplitude (draws, n) at raster positions P (n, k) for target centres c
     (draws, k): the share of the spot on the target, a cylinder's side weighted by
     sqrt(cos) of the incidence (the OA signal falls as the light arrives obliquely)."""
-    rel = P[None, :, None, :] - c[:, None, None, :] + spot[None, None, :, :]
-    if target == "strip":
-        on = np.sqrt(np.sqrt(np.clip(1 - (rel[..., 0] / r) ** 2, 0, None)))
+    def rel(j: int) -> np.ndarray:  # (draws, n, spot samples) offsets along raster axis j
+        return P[None, :, None, j] - c[:, None, None, j] + spot[None, None, :, j]
+
+    if target == "strip":  # only the axis across the strip matters
+        on = np.sqrt(np.sqrt(np.clip(1 - (rel(0) / r) ** 2, 0, None)))
     else:
-        on = ((rel ** 2).sum(-1) < r * r).astype(float)
+        on = (sum(rel(j) ** 2 for j in range(P.shape[1])) < r * r).astype(float)
     return on.mean(axis=2)
 
 

@@ -196,9 +196,9 @@ class CalibrationResult:
     lateral_scale: float = 1.0
 
 
-SCALE_PRIOR_DOF = 4.0
-# residuals: a scale from ~14 residuals alone falls below 0.2 in about one seed of a
-# thousand, and the reported stds with it (a conjugate inverse-gamma prior)
+SCALE_PRIOR_DOF = 4.0  # the declared lateral covariances (scale 1) count as this many
+# residuals (a conjugate inverse-gamma prior), so a scale from the tips' 4 residual degrees
+# of freedom cannot collapse, and the reported stds with it
 
 
 def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bool = True

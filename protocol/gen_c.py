@@ -47,6 +47,7 @@ def _header(spec: Spec) -> str:
            f"#define DMDSM_SPEC_HASH UINT64_C(0x{spec.hash:016x})\n",
            f"#define DMDSM_MAX_PAYLOAD {spec.max_payload}u\n",
            f"#define DMDSM_MAX_COMMAND_PAYLOAD {spec.max_command_payload}u\n",
+           f"#define DMDSM_SYNC_QUIET_MS {spec.sync_quiet_ms}u\n",
            f"#define DMDSM_HEADER_SIZE {HEADER.size}u\n#define DMDSM_CRC_SIZE {CRC_SIZE}u\n",
            "/* largest un-stuffed frame and largest COBS frame between delimiters */\n",
            f"#define DMDSM_MAX_RAW {spec.max_raw}u\n",

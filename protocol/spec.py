@@ -87,6 +87,7 @@ class Spec:
     version: int
     max_payload: int
     max_command_payload: int
+    sync_quiet_ms: int  # a motion-sync burst ends after this quiet time (ms)
     flags: dict[str, int]
     flag_docs: dict[str, str]
     enums: dict[str, dict[str, int]]
@@ -168,7 +169,8 @@ def parse_spec(text: str) -> Spec:
             raise SpecError(f"{m.name}: reply {m.reply} is not a message")
     p = doc["protocol"]
     return Spec(version=p["version"], max_payload=p["max_payload"],
-                max_command_payload=p["max_command_payload"], flags=flags,
+                max_command_payload=p["max_command_payload"],
+                sync_quiet_ms=p["sync_quiet_ms"], flags=flags,
                 flag_docs=flag_docs, enums=enums, enum_docs=enum_docs,
                 messages=tuple(messages), hash=spec_hash(text), text=text)
 

@@ -82,6 +82,8 @@ def _messages() -> list[tuple[str, Message]]:
         ("waveform_no_zero_600", Message("waveform", seq=14, sample_format=0,
                                          samples=np.full(300, 0x0101, "<u2"), **wf)),
         ("log", Message("log", seq=0, level=2, code=7, text="no trigger within 1000 ms")),
+        ("motion_sync", Message("motion_sync", seq=1, burst_id=3, first_edge=0x1_2345_6789,
+                                last_edge=0x1_2C0D_4BA9, edges=5120)),
     ]
 
 

@@ -28,6 +28,7 @@ class MachineLimits:
     rx_buffer_size: int
     max_cmd_size: int
     keepalive_interval_s: float
+    junction_deviation_mm: float = 0.013  # JUNCTION_DEVIATION_MM: corner speed limit (mm)
 
     def axis(self, name: str) -> int:
         """Index of an axis letter (X, Y, Z, A)."""

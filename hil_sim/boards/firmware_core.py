@@ -49,6 +49,7 @@ def _load() -> ctypes.CDLL:
     lib.dmdsm_pc_tx.restype = ctypes.c_size_t
     lib.dmdsm_pc_armed.argtypes = [p, ctypes.POINTER(SetConfig)]
     lib.dmdsm_pc_capture.argtypes = [p, p, u32, u16, ctypes.c_int]
+    lib.dmdsm_pc_sync_edges.argtypes = [p, p, ctypes.c_size_t]
     lib.dmdsm_pc_poll.argtypes = [p]
     lib.dmdsm_pc_state.argtypes = [p]
     lib.dmdsm_pc_state.restype = u8
@@ -111,6 +112,13 @@ class FirmwareCore:
         result = CAPTURE_OVERRUN if overrun else CAPTURE_INTEGRITY if integrity_fault else 0
         self._l.dmdsm_pc_capture(self._dev, s.ctypes.data, edge_ticks & 0xFFFFFFFF,
                                  phase_ticks, result)
+
+    def sync_edges(self, ticks: np.ndarray) -> None:
+        """Rising edges on the motion-sync input at these 32-bit ticks, in time order."""
+        t = np.ascontiguousarray(np.asarray(ticks, dtype=np.int64) & 0xFFFFFFFF,
+                                 dtype=np.uint32)
+        if t.size:
+            self._l.dmdsm_pc_sync_edges(self._dev, t.ctypes.data, t.size)
 
     @property
     def state(self) -> int:

@@ -1,60 +1,155 @@
-"""Stage motion for the Marlin emulator: a planner queue of trapezoidal moves, step-quantised.
+"""Stage motion for the Marlin emulator: Marlin's planner and stepper, in simulated time.
 
-Each move starts and ends at rest (no junction look-ahead: slightly slower than Marlin on
-chained moves, never faster). The feedrate and acceleration along the move are scaled down
-until no axis exceeds its own limit, as Marlin's planner does. Positions are in mm (X, Y, Z)
-and degrees (A); the steppers hold whole steps.
+What a host can observe of a real Marlin's motion is modelled as Marlin 2.1 does it
+(planner.cpp, stepper.cpp): junction deviation and the look-ahead passes set each block's
+entry and exit speed; a block runs a trapezoid in step rates that starts and ends at no less
+than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
+BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; the running block is never
+re-planned; the dominant axis steps at the profile's rate and the others follow by
+Bresenham. Positions are in mm (X, Y, Z) and degrees (A); the steppers hold whole steps.
+Not modelled: S-curve acceleration (off in the patch) and the ISR's tick quantisation.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits
 
+MINIMAL_STEP_RATE = 120.0       # steps/s: Marlin's lowest step rate of a moving block
+BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
+MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
+HISTORY = 16                    # finished blocks kept for position_at() and step_edges()
+
 
 @dataclass
 class Move:
-    """One planner block: start/target in steps, start time and its profile (s, mm/s)."""
+    """One planner block: steps, speeds (mm/s), and once planned its profile in step rates."""
 
     start: np.ndarray    # steps
     target: np.ndarray   # steps
     length: float        # mm (or deg for an A-only move)
-    v: float             # cruise speed along the move
-    a: float             # acceleration along the move
-    t_acc: float = 0.0   # s
-    t_cruise: float = 0.0
-    added: float = 0.0       # when it was queued (s)
-    t0: float | None = None  # when it started executing (None: still queued)
+    v: float             # nominal speed along the move (mm/s)
+    a: float             # acceleration along the move (mm/s^2)
+    unit: np.ndarray     # direction, for the junction speed
+    added: float = 0.0           # when it was queued (s)
+    after_idle: bool = False     # queued while the planner was empty (first-move delay)
+    max_entry: float = 0.0       # junction limit (mm/s)
+    entry: float = 0.0           # planned entry and exit speed (mm/s)
+    exit: float = 0.0
+    t0: float | None = None      # when its first step was taken (None: still queued)
+    cut: float = math.inf        # a quick stop ended it here (s)
+    _edges: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.delta = self.target - self.start
+        self.n = int(np.max(np.abs(self.delta))) if self.delta.size else 0
+        self.profile()
+
+    # --------------------------------------------------------------- trapezoid in steps
+    def profile(self) -> None:
+        """Rates (steps/s of the dominant axis) and phase lengths from entry and exit."""
+        n = self.n
+        if n == 0 or self.length <= 0:
+            self.r0 = self.r1 = self.r2 = 1.0
+            self.A = 1.0
+            self.d_acc = self.d_dec = self.d_cruise = 0.0
+            return
+        k = n / self.length  # steps per mm along the move
+        rn = max(self.v * k, MINIMAL_STEP_RATE)
+        r0 = min(max(self.entry * k, MINIMAL_STEP_RATE), rn)
+        r2 = min(max(self.exit * k, MINIMAL_STEP_RATE), rn)
+        A = self.a * k
+        d_acc = (rn * rn - r0 * r0) / (2 * A)
+        d_dec = (rn * rn - r2 * r2) / (2 * A)
+        if d_acc + d_dec > n:  # never reaches the nominal rate
+            rn = math.sqrt((2 * A * n + r0 * r0 + r2 * r2) / 2)
+            if rn < max(r0, r2):  # cannot change speed that much: constant rate
+                rn = r0 = r2 = max(r0, r2)
+            d_acc = (rn * rn - r0 * r0) / (2 * A)
+            d_dec = max(n - d_acc, 0.0)
+        self.r0, self.r1, self.r2, self.A = r0, rn, r2, A
+        self.d_acc, self.d_dec = d_acc, d_dec
+        self.d_cruise = max(n - d_acc - d_dec, 0.0)
+
+    @property
+    def t_acc(self) -> float:
+        """Acceleration time (s)."""
+        return (self.r1 - self.r0) / self.A
+
+    @property
+    def t_cruise(self) -> float:
+        """Cruise time (s)."""
+        return self.d_cruise / self.r1
+
+    @property
+    def t_dec(self) -> float:
+        """Deceleration time (s)."""
+        return (self.r1 - self.r2) / self.A
 
     @property
     def duration(self) -> float:
-        """Total time of the move (s)."""
-        return 2 * self.t_acc + self.t_cruise
+        """Time from the first step until the block hands over to the next (s)."""
+        return 0.0 if self.n == 0 else self.t_acc + self.t_cruise + self.t_dec
 
-    def fraction(self, t: float) -> float:
-        """Fraction of the move done t seconds after its start (0..1)."""
-        if self.length == 0 or t >= self.duration:
-            return 1.0
-        if t <= 0:
-            return 0.0
-        d_acc = 0.5 * self.a * self.t_acc ** 2
-        if t < self.t_acc:
-            s = 0.5 * self.a * t * t
-        elif t < self.t_acc + self.t_cruise:
-            s = d_acc + self.v * (t - self.t_acc)
-        else:
-            td = self.duration - t
-            s = self.length - 0.5 * self.a * td * td
-        return min(1.0, s / self.length)
+    def s_at(self, t: np.ndarray | float) -> np.ndarray:
+        """Dominant-axis steps taken t seconds after the first (continuous, 0..n)."""
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        ta, tc = self.t_acc, self.t_cruise
+        acc = self.r0 * t + 0.5 * self.A * t * t
+        cru = self.d_acc + self.r1 * (t - ta)
+        tau = t - ta - tc
+        dec = self.d_acc + self.d_cruise + self.r1 * tau - 0.5 * self.A * tau * tau
+        return np.where(t < ta, acc, np.where(t < ta + tc, cru, dec))
+
+    def time_of(self, s: np.ndarray) -> np.ndarray:
+        """Inverse of s_at: seconds after the first step when s steps are done."""
+        s = np.asarray(s, dtype=float)
+        A, r0, r1 = self.A, self.r0, self.r1
+        with np.errstate(invalid="ignore"):
+            acc = (np.sqrt(np.maximum(r0 * r0 + 2 * A * s, 0.0)) - r0) / A
+            cru = self.t_acc + (s - self.d_acc) / r1
+            x = s - self.d_acc - self.d_cruise
+            dec = self.t_acc + self.t_cruise + (r1 - np.sqrt(np.maximum(r1 * r1 - 2 * A * x,
+                                                                         0.0))) / A
+        return np.where(s < self.d_acc, acc, np.where(s < self.d_acc + self.d_cruise, cru, dec))
+
+    def steps_after(self, t: float) -> np.ndarray:
+        """Signed steps of every axis t seconds after the first step (Bresenham)."""
+        if self.n == 0 or t < 0:
+            return np.zeros_like(self.delta)
+        k = min(self.n, int(math.floor(float(self.s_at(t)))) + 1)
+        if t >= self.duration:
+            k = self.n
+        moved = (2 * k * np.abs(self.delta) + self.n) // (2 * self.n)
+        return np.sign(self.delta) * moved
+
+    def edges(self, axis: int) -> np.ndarray:
+        """Times (s after the first step) of the STEP pulses of one axis."""
+        if axis not in self._edges:
+            d = int(abs(self.delta[axis]))
+            if d == 0 or self.n == 0:
+                self._edges[axis] = np.zeros(0)
+            else:
+                k = np.arange(1, self.n + 1, dtype=np.int64)
+                m = (2 * k * d + self.n) // (2 * self.n)
+                steps_at = k[np.diff(np.concatenate(([0], m))) > 0]
+                self._edges[axis] = self.time_of(steps_at - 1.0)
+        return self._edges[axis]
+
+    @property
+    def end(self) -> float:
+        """When it ended or will end (s); inf while it has not started."""
+        return math.inf if self.t0 is None else min(self.t0 + self.duration, self.cut)
 
 
 @dataclass
 class Planner:
-    """The planner queue and stepper positions of a 4-axis stage."""
+    """The planner queue, the stepper and the step counts of a 4-axis stage."""
 
     limits: MachineLimits
     steps: np.ndarray = field(init=False)       # where the steppers are (last update)
@@ -66,6 +161,8 @@ class Planner:
         self.spu = np.asarray(self.limits.steps_per_unit, dtype=float)
         self.vmax = np.asarray(self.limits.max_feedrate, dtype=float)
         self.amax = np.asarray(self.limits.max_acceleration, dtype=float)
+        self.jd = float(getattr(self.limits, "junction_deviation_mm", 0.013))
+        self.history: deque[Move] = deque(maxlen=HISTORY)
 
     def to_steps(self, pos: np.ndarray) -> np.ndarray:
         """Positions (mm, deg) to whole steps."""
@@ -83,54 +180,131 @@ class Planner:
         length = linear if linear > 0 else float(abs(delta[3:]).sum())
         v = feed_mm_s
         a = accel if accel is not None else self.limits.default_acceleration
+        unit = delta / length if length > 0 else np.zeros_like(delta)
         if length > 0:
-            unit = np.abs(delta) / length  # axis speed per unit of path speed
+            axis_unit = np.abs(unit)  # axis speed per unit of path speed
             with np.errstate(divide="ignore"):
-                v = min(v, float(np.min(np.where(unit > 0, self.vmax / unit, np.inf))))
-                a = min(a, float(np.min(np.where(unit > 0, self.amax / unit, np.inf))))
-        move = Move(start_steps.copy(), target_steps.copy(), length, max(v, 1e-6), max(a, 1e-6),
-                    added=now)
-        if length > 0:
-            t_acc = move.v / move.a
-            if move.a * t_acc * t_acc > length:  # triangle: never reaches cruise
-                t_acc = math.sqrt(length / move.a)
-                move.v = move.a * t_acc
-            move.t_acc = t_acc
-            move.t_cruise = max(0.0, (length - move.a * t_acc * t_acc) / move.v)
+                v = min(v, float(np.min(np.where(axis_unit > 0, self.vmax / axis_unit,
+                                                 np.inf))))
+                a = min(a, float(np.min(np.where(axis_unit > 0, self.amax / axis_unit,
+                                                 np.inf))))
+        move = Move(start_steps.copy(), target_steps.copy(), length, max(v, 1e-6),
+                    max(a, 1e-6), unit, added=now, after_idle=not self.queue)
+        if move.n == 0:
+            return move  # Marlin drops a move of no steps
+        prev = self.queue[-1] if self.queue else None
+        move.max_entry = self._junction(prev, move) if prev is not None else 0.0
         self.queue.append(move)
+        self._replan()
         return move
+
+    def _junction(self, prev: Move, move: Move) -> float:
+        """Largest speed (mm/s) through the corner between two blocks (junction deviation)."""
+        cos_theta = -float(np.dot(prev.unit, move.unit))
+        if cos_theta > 0.999999:  # a reversal
+            return MINIMUM_PLANNER_SPEED
+        cos_theta = max(cos_theta, -0.999999)
+        ju = move.unit - prev.unit
+        norm = float(np.linalg.norm(ju))
+        a = move.a
+        if norm > 0:
+            ju = np.abs(ju / norm)
+            with np.errstate(divide="ignore"):
+                a = min(a, float(np.min(np.where(ju > 0, self.amax / ju, np.inf))))
+        sin_d2 = math.sqrt(0.5 * (1.0 - cos_theta))
+        v2 = a * self.jd * sin_d2 / (1.0 - sin_d2)
+        return math.sqrt(min(v2, move.v ** 2, prev.v ** 2))
+
+    def _replan(self) -> None:
+        """Look-ahead: the reverse and forward passes over the blocks not yet running."""
+        todo = [m for m in self.queue if m.t0 is None]
+        if not todo:
+            return
+        nxt = MINIMUM_PLANNER_SPEED
+        for m in reversed(todo):  # reverse pass: each block must be able to stop in time
+            m.exit = nxt
+            m.entry = min(m.max_entry, math.sqrt(nxt * nxt + 2 * m.a * m.length))
+            nxt = m.entry
+        running = [m for m in self.queue if m.t0 is not None]
+        prev_exit = running[-1].exit if running else 0.0
+        for m in todo:  # forward pass: and reach its entry speed from the previous one
+            m.entry = min(m.entry, prev_exit)
+            m.exit = min(m.exit, math.sqrt(m.entry ** 2 + 2 * m.a * m.length))
+            prev_exit = m.exit
+        for m in todo:
+            m.profile()
+
+    def _start_time(self, m: Move) -> float | None:
+        """When the head block starts, or None if Marlin is still holding it back."""
+        if not m.after_idle or self.prev_end >= m.added:
+            return max(m.added, self.prev_end)
+        t = m.added + BLOCK_DELAY_FOR_1ST_MOVE
+        if len(self.queue) >= 3:
+            t = min(t, max(m.added, self.queue[2].added))
+        return t
 
     def update(self, now: float) -> None:
         """Advance execution to time `now` (s): finished blocks leave the queue."""
         while self.queue:
             m = self.queue[0]
             if m.t0 is None:
-                m.t0 = max(m.added, self.prev_end)
-            end = m.t0 + m.duration
-            if end > now:
-                f = m.fraction(now - m.t0)
-                self.steps = np.rint(m.start + (m.target - m.start) * f).astype(np.int64)
+                start = self._start_time(m)
+                if start is None or start > now:
+                    return
+                m.t0 = start
+                self.history.append(m)
+            if m.end > now:
+                self.steps = m.start + m.steps_after(now - m.t0)
                 return
             self.steps = m.target.copy()
-            self.prev_end = end
+            self.prev_end = m.end
             self.queue.pop(0)
 
     def busy_until(self, now: float) -> float:
-        """Time (s) when the queued moves will all have finished."""
+        """Time (s) when the queued moves will all have finished, as planned now."""
         self.update(now)
         t = now
-        for m in self.queue:
-            t = max(t, m.t0 if m.t0 is not None else m.added) + m.duration
+        for i, m in enumerate(self.queue):
             if m.t0 is not None:
-                t = m.t0 + m.duration
+                t = m.end
+            elif i == 0:
+                t = max(now, self._start_time(m) or now) + m.duration
+            else:
+                t += m.duration
         return t
 
     def quick_stop(self, now: float) -> None:
         """M410: stop where the steppers are and drop every queued block."""
         self.update(now)
+        for m in self.queue:
+            if m.t0 is not None:
+                m.cut = now
         self.queue.clear()
         self.prev_end = now
 
     def position(self) -> np.ndarray:
         """Where the steppers are, in mm and degrees."""
         return self.steps / self.spu
+
+    def _covering(self, t: float) -> Move | None:
+        for m in self.history:
+            if m.t0 is not None and m.t0 <= t < m.end:
+                return m
+        return None
+
+    def position_at(self, t: float) -> np.ndarray:
+        """Where the steppers were at time t (s), at most HISTORY blocks back (mm, deg)."""
+        m = self._covering(t)
+        if m is None:
+            return self.position()
+        return (m.start + m.steps_after(t - m.t0)) / self.spu
+
+    def step_edges(self, axis: int, t_from: float, t_to: float) -> np.ndarray:
+        """Times (s) of the STEP pulses of `axis` in (t_from, t_to], in order."""
+        out = []
+        for m in self.history:
+            if m.t0 is None or m.end <= t_from or m.t0 > t_to:
+                continue
+            e = m.t0 + m.edges(axis)
+            out.append(e[(e > t_from) & (e <= t_to) & (e < m.cut)])
+        return np.concatenate(out) if out else np.zeros(0)

@@ -22,6 +22,7 @@ TICK_HZ = 240_000_000
 ADC_RATE_HZ = TICK_HZ / 72  # the NUCLEO's paced rate, 3.333 MS/s (docs/firmware.md)
 
 Pose = Callable[[float], tuple[np.ndarray, float]]  # time (s) -> (S in mm, theta in deg)
+Edges = Callable[[float, float], np.ndarray]  # (t_from, t_to] (s) -> times of sync edges (s)
 
 
 class SensorBoard:
@@ -30,8 +31,10 @@ class SensorBoard:
     def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
                  seed: int = 0, rep_rate_hz: float = 1000.0,
                  link_bytes_per_s: float = 200_000.0, max_samples: int = 8192,
-                 frozen_noise: bool = False) -> None:
+                 frozen_noise: bool = False, sync_edges: Edges | None = None) -> None:
         self.scene = scene
+        self.sync_source = sync_edges  # the stage's X STEP line, wired to the sync input
+        self.sync_until = 0.0          # edges up to this time (s) have been delivered
         self.pose = pose
         self.model = model or SensorModel()
         self.seed = seed
@@ -88,6 +91,14 @@ class SensorBoard:
         self.step_to(now)
         self.core.rx(data)
 
+    def _sync_to(self, t: float) -> None:
+        """Deliver the motion-sync edges up to time t (s) to the core, before anything at t."""
+        if self.sync_source is not None and t > self.sync_until:
+            edges = self.sync_source(self.sync_until, t)
+            if edges.size:
+                self.core.sync_edges(np.rint(edges * TICK_HZ).astype(np.int64))
+            self.sync_until = t
+
     def step_to(self, now: float) -> None:
         """Fire every laser shot up to `now` (s)."""
         period = 1.0 / self.rep_rate_hz
@@ -96,6 +107,7 @@ class SensorBoard:
             self.next_shot = max(self.next_shot, now - now % period + period)
         fired = 0
         while self.next_shot <= now and fired < 100_000:
+            self._sync_to(self.next_shot)
             cfg = self.core.armed()
             if cfg is not None:
                 if self.frozen_noise and not self._in_arm:
@@ -106,6 +118,7 @@ class SensorBoard:
                 self._in_arm = False
             self.next_shot += period
             fired += 1
+        self._sync_to(now)
         self.now = max(self.now, now)
         self.core.set_ticks(self._ticks(self.now))
 

@@ -166,23 +166,39 @@ class Scene:
     objects: list[SceneObject] = field(default_factory=list)
     spot_radius: float = 0.25  # mm, laser spot radius at the target
 
-    def cast(self, S: np.ndarray, theta_deg: float, max_d: float = 200.0) -> Hit:
-        """Ray-cast the beam from sensor position S (mm) with the table at theta (deg)."""
+    def _frames(self, theta_deg: float) -> tuple[np.ndarray, np.ndarray, list]:
+        """What a cast needs that depends only on the table angle (cached for the last
+        angle: a fly line casts a thousand times a second at one angle): the beam, the spot's
+        ray offsets (mm) and each object's local->world rotation, centre and local beam."""
+        key = (float(theta_deg), id(self.objects), len(self.objects),
+               tuple(self.v), tuple(self.n), tuple(self.X_R))
+        cached = getattr(self, "_frame_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
         v = unit(self.v)
         basis = table_frame(self.n)
         rot = rodrigues(self.n, np.radians(theta_deg)) @ basis  # table frame after turning
         e1 = unit(np.cross(v, [0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.cross(v, [1, 0, 0]))
         e2 = np.cross(v, e1)
-        origins = np.asarray(S, float) + self.spot_radius * (SPOT[:, :1] * e1 + SPOT[:, 1:] * e2)
+        spot = self.spot_radius * (SPOT[:, :1] * e1 + SPOT[:, 1:] * e2)
+        frames = []
+        for obj in self.objects:
+            to_local = rot @ obj.shape.R  # local -> world rotation
+            center = self.X_R + rot @ obj.shape.center
+            frames.append((to_local, center, np.tile(v @ to_local, (len(SPOT), 1))))
+        self._frame_cache = (key, (v, spot, frames))
+        return v, spot, frames
+
+    def cast(self, S: np.ndarray, theta_deg: float, max_d: float = 200.0) -> Hit:
+        """Ray-cast the beam from sensor position S (mm) with the table at theta (deg)."""
+        v, spot, frames = self._frames(theta_deg)
+        origins = np.asarray(S, float) + spot
         best = np.full(len(origins), np.inf)
         normals = np.zeros((len(origins), 3))
         owner = np.full(len(origins), -1)
         local = np.zeros((len(origins), 3))
-        for k, obj in enumerate(self.objects):
-            to_local = rot @ obj.shape.R  # local -> world rotation
-            center = self.X_R + rot @ obj.shape.center
+        for k, (obj, (to_local, center, d)) in enumerate(zip(self.objects, frames)):
             o = (origins - center) @ to_local
-            d = np.tile(v @ to_local, (len(origins), 1))
             t, nl = obj.shape.local_hit(o, d)
             closer = t < best
             best = np.where(closer, t, best)

@@ -76,7 +76,8 @@ class Simulation:
             self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
                                       rep_rate_hz=cfg.rep_rate_hz,
                                       link_bytes_per_s=cfg.sensor_link_bytes_per_s,
-                                      frozen_noise=cfg.frozen_noise)
+                                      frozen_noise=cfg.frozen_noise,
+                                      sync_edges=self.x_step_edges)
         self.channels = {
             (name, way): FaultyChannel(link[name], seed=cfg.seed * 4 + i)
             for i, (name, way) in enumerate((n, w) for n in ("sensor", "stage")
@@ -91,13 +92,18 @@ class Simulation:
         S is the stage's physical position with {0} at logical (0, 0, 0) after homing
         (raw steps + the homed origin), plus a fixed per-position scatter.
         """
-        raw = self.stage.planner.position()
+        raw = self.stage.planner.position_at(t)
         S = raw[:3] + np.asarray(self.limits.min_pos[:3], float)
-        S = S + hash_noise(f"S{np.round(raw[:3], 3)}", self.cfg.stage_noise_mm, 3,
-                            self.cfg.seed)
+        S = S + hash_noise("S[{:.3f} {:.3f} {:.3f}]".format(*raw[:3]),
+                           self.cfg.stage_noise_mm, 3, self.cfg.seed)
         theta = raw[3] + hash_noise(f"A{round(raw[3], 3)}", self.cfg.angle_noise_deg, 1,
                                      self.cfg.seed)[0]
         return S, float(theta)
+
+    def x_step_edges(self, t_from: float, t_to: float) -> np.ndarray:
+        """Times (s) of the X stepper's STEP pulses in (t_from, t_to]: the motion-sync wire
+        from the stage board's X STEP line to the sensor board (docs/firmware.md)."""
+        return self.stage.planner.step_edges(self.limits.axis("X"), t_from, t_to)
 
     def truth(self) -> dict:
         """What the host must estimate: v, n, X_R, c, t0s, the current pose and distance."""

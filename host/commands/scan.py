@@ -24,7 +24,7 @@ log = logging.getLogger("dmdsm.scan")
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `scan`."""
-    p = sub.add_parser("scan", help="scan an object into the database (step and shoot)")
+    p = sub.add_parser("scan", help="scan an object into the database (step and shoot, or fly)")
     add_ports(p)
     p.add_argument("--calibration", type=Path, default=Path("calibration.toml"),
                    help="scanner calibration from `dmdsm calibrate` (default ./calibration.toml)")
@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", dest="object_id", help="override [sample] object_id")
     p.add_argument("--material", help="override [sample] material")
     p.add_argument("--scan-id", help="name of the scan (default: object id + plan hash)")
+    p.add_argument("--mode", choices=("step", "fly"),
+                   help="override [scan] mode: step and shoot, or fly (each line one "
+                        "constant-speed move, shots placed by time; docs/scanning.md)")
     p.add_argument("--no-home", action="store_true", help="the stage is already homed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_scan)
@@ -49,7 +52,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     if args.db is None:
         raise CliError("give --db DIR: the scan database folder (created if missing)")
     try:
-        plan = load_plan(args.plan, object_id=args.object_id, material=args.material)
+        plan = load_plan(args.plan, object_id=args.object_id, material=args.material,
+                         mode=args.mode)
     except PlanError as e:
         raise CliError(str(e)) from None
     cal, cal_text = load_calibration(args.calibration)

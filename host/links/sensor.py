@@ -12,6 +12,7 @@ import logging
 import random
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,6 +78,7 @@ class ClockSync:
     ticks_per_s: float
     residual_s: float      # rms of the fit (s)
     rtt_s: float           # median round trip (s)
+    rate_std: float = float("inf")  # std of ticks_per_s from the fit (ticks/s)
 
     def to_host_s(self, ticks: np.ndarray | float) -> np.ndarray | float:
         """Host monotonic time (s) of device ticks."""
@@ -107,6 +109,10 @@ class SensorClient:
         # forgotten on reconnect and when a waveform does not match the cached config
         self._config: dict | None = None
         self._counters: dict | None = None
+        # continuous acquisition (stream_start/stream_stop): waveform messages in arrival
+        # order; motion_sync reports (the stage's X STEP bursts) as they come, the last 256
+        self.stream: list[Message] | None = None
+        self.motion_syncs: deque[Message] = deque(maxlen=256)
         self._open()
         self.identity = self.handshake()
         self.took_over = self._take_over()
@@ -180,6 +186,16 @@ class SensorClient:
                 self._route(m)
 
     def _route(self, m: Message) -> None:
+        if m.name == "waveform" and self.stream is not None:
+            with self.cond:
+                self.stream.append(m)
+                self.cond.notify_all()
+            return
+        if m.name == "motion_sync":
+            with self.cond:
+                self.motion_syncs.append(m)
+                self.cond.notify_all()
+            return
         if m.name == "waveform":
             s = self.shots
             if s is not None and m.samples.size != s.samples.shape[1]:
@@ -320,6 +336,36 @@ class SensorClient:
         shots.link_rejected = self.decoder.stats.errors - rejected0
         return shots
 
+    def stream_start(self) -> None:
+        """Arm continuously: every averaged waveform is kept, in order, until stream_stop."""
+        self._stream_before = self._counters or self.status()
+        self.stream = []
+        try:
+            self._expect_ack(self.request("arm", n_shots=0), "arm")
+        except BaseException:
+            self.stream = None
+            raise
+
+    def stream_stop(self) -> tuple[list[Message], dict]:
+        """Disarm, wait for the link to go quiet, and return the streamed waveforms and
+        the device counters' change over the stream (dropped, overruns, integrity)."""
+        before = self._stream_before
+        try:
+            self.disarm()
+            idle = SPEC.enums["state"]["idle"]
+            end = time.monotonic() + 2.0
+            after = self.status()  # idle: every waveform's bytes went out before this reply
+            while after["state"] != idle and time.monotonic() < end:
+                time.sleep(0.005)
+                after = self.status()
+        finally:
+            with self.cond:
+                got, self.stream = self.stream or [], None
+        self._counters = after
+        change = {k: after[k] - before[k]
+                  for k in ("shots_dropped", "adc_overruns", "integrity_faults")}
+        return got, change
+
     def _collect(self, shots: Shots, n: int, cfg: dict, timeout_s: float | None,
                  progress: object | None) -> None:
         """Wait for the shots; stop early once the device is idle and the link is quiet."""
@@ -348,19 +394,33 @@ class SensorClient:
             with self.cond:
                 self.cond.wait(0.05)
 
-    def sync_clock(self, exchanges: int = 16) -> ClockSync:
-        """Fit device ticks against host time over clock_sync exchanges (Klipper's way)."""
-        mids, ticks, rtts = [], [], []
-        for _ in range(exchanges):
+    def clock_exchanges(self, n: int = 16) -> list[tuple[float, float, float]]:
+        """n clock_sync exchanges: (host monotonic mid-time s, device ticks, round trip s)."""
+        out = []
+        for _ in range(n):
             t0 = time.monotonic_ns()
             r = self.request("clock_sync", host_time_ns=t0)
             t1 = time.monotonic_ns()
-            mids.append((t0 + t1) / 2e9)
-            ticks.append(float(r.device_ticks))
-            rtts.append((t1 - t0) / 1e9)
-        x, y = np.asarray(mids), np.asarray(ticks)
-        keep = np.asarray(rtts) <= np.median(rtts) * 1.5  # drop exchanges that waited
-        rate, offset = np.polyfit(x[keep] - x[0], y[keep], 1)
-        resid = y[keep] - (offset + rate * (x[keep] - x[0]))
-        return ClockSync(offset - rate * x[0], rate, float(np.sqrt(np.mean(resid ** 2)) / rate),
-                         float(np.median(rtts)))
+            out.append(((t0 + t1) / 2e9, float(r.device_ticks), (t1 - t0) / 1e9))
+        return out
+
+    def sync_clock(self, exchanges: int = 16) -> ClockSync:
+        """Fit device ticks against host time over clock_sync exchanges (Klipper's way)."""
+        return fit_clock(self.clock_exchanges(exchanges))
+
+
+def fit_clock(samples: list[tuple[float, float, float]]) -> ClockSync:
+    """Device ticks = offset + rate * host s, least squares over the exchanges that did not
+    wait (round trip within 1.5x the median); residual and the drift's std from the fit."""
+    x, y, rtts = (np.asarray(v, dtype=float) for v in zip(*samples))
+    keep = rtts <= np.median(rtts) * 1.5
+    if keep.sum() < 2:
+        keep[:] = True
+    xk, yk = x[keep] - x[keep][0], y[keep]
+    rate, offset = np.polyfit(xk, yk, 1)
+    resid = yk - (offset + rate * xk)
+    res_s = float(np.sqrt(np.mean(resid ** 2)) / rate)
+    spread = float(np.sqrt(np.sum((xk - xk.mean()) ** 2)))
+    rate_std = res_s * rate / spread if spread > 0 and len(xk) > 2 else float("inf")
+    return ClockSync(offset - rate * x[keep][0], rate, res_s, float(np.median(rtts)),
+                     rate_std=rate_std)

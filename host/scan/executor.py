@@ -34,6 +34,7 @@ class ScanStats:
     phase_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(PHASES, 0.0))
     store_s: float = 0.0
     wall_s: float = 0.0
+    clock: dict = field(default_factory=dict)  # fly: the clock sync (drift, residual, RTT)
 
     def per_point_ms(self) -> dict[str, float]:
         """Mean wall time per stored point and phase (ms)."""

@@ -22,6 +22,7 @@ from dmdsm.marlin_patch import MachineLimits
 from ..links.safety import KeepOut, UnsafeMove, check_move
 
 MODALITIES = ("both", "oa", "us")
+MODES = ("step", "fly")
 
 
 class PlanError(ValueError):
@@ -49,6 +50,8 @@ class ScanPlan:
     modality: str = "both"           # which distances the scan is for (both are ranged)
     turntable_radius_mm: float = 60.0
     depth_margin_mm: float = 3.0     # echoes are searched standoff - m .. standoff + 2R + m
+    mode: str = "step"               # "step": step and shoot; "fly": each line one move
+    laser_hz: float = 1000.0         # laser repetition rate; fly sets the speed from it
 
     def validate(self) -> None:
         """Raise PlanError naming the first bad value."""
@@ -68,6 +71,21 @@ class ScanPlan:
         if self.modality not in MODALITIES:
             raise PlanError(f"modality must be one of {', '.join(MODALITIES)} "
                             f"(got {self.modality!r})")
+        if self.mode not in MODES:
+            raise PlanError(f"mode must be one of {', '.join(MODES)} (got {self.mode!r})")
+        if not self.laser_hz > 0:
+            raise PlanError(f"laser_hz must be positive (got {self.laser_hz})")
+        if self.mode == "fly":
+            from dmdsm.marlin_patch import load_machine
+
+            m = load_machine()
+            v = self.step_mm * self.laser_hz / self.average
+            vmax = m.max_feedrate[m.axis("X")]
+            if v > vmax:
+                raise PlanError(f"a fly scan at step_mm {self.step_mm:g} with average "
+                                f"{self.average} and laser_hz {self.laser_hz:g} moves at "
+                                f"{v:.0f} mm/s, above the X axis's {vmax:g} mm/s: raise "
+                                f"average or lower step_mm")
         if self.step_mm > 2 * self.half_width_mm:
             raise PlanError("step_mm is larger than the raster width (2 x half_width_mm)")
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int)}
@@ -106,8 +124,9 @@ class ScanPlan:
         obj = ("radius_mm", "height_mm", "turntable_radius_mm")
         out = ["[sample]"] + [f"{k} = {val(d[k])}" for k in sample]
         out += ["", "[object]"] + [f"{k} = {val(d[k])}" for k in obj]
+        step_only = ("mode", "laser_hz") if self.mode == "step" else ()  # same ids as before
         out += ["", "[scan]"] + [f"{k} = {val(v)}" for k, v in d.items()
-                                 if k not in sample + obj]
+                                 if k not in sample + obj + step_only]
         return "\n".join(out) + "\n"
 
     def hash(self) -> str:
@@ -207,11 +226,20 @@ def check_plan(points: list[Point], start: np.ndarray | None, limits: MachineLim
         return
     targets = [np.array([p.x, p.y, p.z]) for p in points]
     labels = [f"point {p.index}" for p in points]
+    check_path(targets, labels, start, limits, zones)
+
+
+def check_path(targets: list[np.ndarray], labels: list[str], start: np.ndarray | None,
+               limits: MachineLimits, zones: list[KeepOut]) -> None:
+    """Raise UnsafeMove (naming the label) if a straight move through the targets (X, Y, Z
+    mm), from `start` (None: from the first target), leaves the envelope or crosses a
+    keep-out."""
+    targets, labels = list(targets), list(labels)
     if start is None:
         here = targets[0]
     else:  # the approach: along Y into the front plane first, then X and Z
         here = np.asarray(start, float)
-        targets.insert(0, np.array([here[0], points[0].y, here[2]]))
+        targets.insert(0, np.array([here[0], targets[0][1], here[2]]))
         labels.insert(0, "the approach to the front plane")
     for label, t in zip(labels, targets):
         for zone in zones:

@@ -192,6 +192,23 @@ class ScanWriter:
         self.f.flush()
         self.n_done = i + 1
 
+    def append_many(self, waveforms: np.ndarray, **values: object) -> None:
+        """Store several finished points at once (values: arrays over them for every name
+        of POINT_FIELDS), point_index last, and flush once: a fly line lands whole."""
+        d = self.data
+        i = self.n_done
+        k = len(waveforms)
+        missing = set(POINT_FIELDS) - set(values)
+        if missing:
+            raise ValueError(f"points lack {sorted(missing)}")
+        order = ["waveforms"] + [n for n in POINT_FIELDS if n != "point_index"] + ["point_index"]
+        for name in order:
+            ds = d[name]
+            ds.resize(i + k, axis=0)
+            ds[i:i + k] = waveforms if name == "waveforms" else values[name]
+        self.f.flush()
+        self.n_done = i + k
+
     def close(self, status: str) -> None:
         """Close the file, marking it `complete` or `interrupted` (readable either way)."""
         import h5py

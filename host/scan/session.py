@@ -24,7 +24,8 @@ from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from .catalogue import connect, record
 from .executor import PointRanger, ScanStats, run_scan
-from .plan import Point, ScanPlan, check_plan, expand, keep_outs
+from .fly_executor import fly_lines, line_ends, run_fly_scan
+from .plan import Point, ScanPlan, check_path, check_plan, expand, keep_outs
 from .scanfile import ScanFileError, ScanWriter, read_scan
 
 
@@ -46,7 +47,8 @@ class ScanRun:
                 "stored_now": s.stored, "lost_waveforms": s.lost,
                 "wall_s": round(s.wall_s, 2),
                 "points_per_s": round(s.stored / s.wall_s, 3) if s.wall_s else 0,
-                "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()}}
+                "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()},
+                **({"clock_sync": s.clock} if s.clock else {})}
 
 
 def scan_identity(plan: ScanPlan, calibration_toml: str, setup: RangingSetup) -> str:
@@ -60,8 +62,26 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     board: call it before opening a port."""
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
     points = expand(plan, v, X_R)
-    check_plan(points, None, load_machine(), keep_outs(plan, n, X_R))
+    machine, zones = load_machine(), keep_outs(plan, n, X_R)
+    if plan.mode == "fly":  # the whole swept path, run-ups and run-outs included
+        targets, labels = fly_path(points, plan, machine)
+        check_path(targets, labels, None, machine, zones)
+    else:
+        check_plan(points, None, machine, zones)
     return points
+
+
+def fly_path(points: list[Point], plan: ScanPlan, machine: object
+             ) -> tuple[list[np.ndarray], list[str]]:
+    """Every point a fly scan's stage passes through in a straight move (run-up start, then
+    run-out end, line by line), with labels for the refusal message."""
+    targets, labels = [], []
+    for line in fly_lines(points):
+        p = line.points[0]
+        xs, xe = line_ends(line, plan, machine)
+        targets += [np.array([xs, p.y, p.z]), np.array([xe, p.y, p.z])]
+        labels += [f"line {line.index}'s run-up start", f"line {line.index}'s run-out end"]
+    return targets, labels
 
 
 SCAN_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
@@ -118,7 +138,12 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
     if home:
         stage.home()
     here = stage.where()
-    check_plan(points[:1], np.array([here["X"], here["Y"], here["Z"]]), machine, keep)
+    here_xyz = np.array([here["X"], here["Y"], here["Z"]])
+    if plan.mode == "fly":
+        targets, labels = fly_path(points[:1], plan, machine)
+        check_path(targets[:1], labels[:1], here_xyz, machine, keep)
+    else:
+        check_plan(points[:1], here_xyz, machine, keep)
     sc = sensor.configure(n_samples=plan.samples, n_average=plan.average, pretrigger=0,
                           trigger_timeout_ms=2000)
     ident = dict(sensor.identity.fields)
@@ -142,7 +167,11 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
         if on_start is not None:
             on_start(writer, len(points))
         ranger = PointRanger(setup, plan, sc["n_samples"], sensor.identity.tick_hz)
-        run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
+        if plan.mode == "fly":
+            run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
+                                     progress)
+        else:
+            run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
         stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)
         stage.wait()
         run.status = "complete"

@@ -64,6 +64,7 @@ static const struct dmdsm_msg_info infos[] = {
     {0xf1, 0, 0, 4, 0x00, "nak"},
     {0xa0, 0, 3, 34, 0x00, "waveform"},
     {0xa1, 0, 2, 2, 0x00, "log"},
+    {0xa2, 0, 0, 24, 0x00, "motion_sync"},
 };
 
 const struct dmdsm_msg_info *dmdsm_msg_info(uint8_t type)
@@ -459,6 +460,26 @@ bool dmdsm_unpack_log(const uint8_t *p, size_t len, struct dmdsm_log *m)
     return true;
 }
 
+size_t dmdsm_pack_motion_sync(const struct dmdsm_motion_sync *m, uint8_t *out)
+{
+    put_le(out + 0, (uint64_t)(uint32_t)m->burst_id, 4);
+    put_le(out + 4, (uint64_t)(uint64_t)m->first_edge, 8);
+    put_le(out + 12, (uint64_t)(uint64_t)m->last_edge, 8);
+    put_le(out + 20, (uint64_t)(uint32_t)m->edges, 4);
+    return 24u;
+}
+
+bool dmdsm_unpack_motion_sync(const uint8_t *p, size_t len, struct dmdsm_motion_sync *m)
+{
+    if (!dmdsm_payload_ok(0xa2, p, len))
+        return false;
+    m->burst_id = (uint32_t)get_le(p + 0, 4);
+    m->first_edge = (uint64_t)get_le(p + 4, 8);
+    m->last_edge = (uint64_t)get_le(p + 12, 8);
+    m->edges = (uint32_t)get_le(p + 20, 4);
+    return true;
+}
+
 int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
                      char *out, size_t cap)
 {
@@ -585,6 +606,13 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "code=%llu ", (unsigned long long)get_le(payload + 1, 1));
         put(&w, "text:len=%lu:crc=%08lx ", (unsigned long)(len - 2u),
             (unsigned long)crc32_of(payload + 2, len - 2u));
+        break;
+    }
+    case 0xa2: {
+        put(&w, "burst_id=%llu ", (unsigned long long)get_le(payload + 0, 4));
+        put(&w, "first_edge=%llu ", (unsigned long long)get_le(payload + 4, 8));
+        put(&w, "last_edge=%llu ", (unsigned long long)get_le(payload + 12, 8));
+        put(&w, "edges=%llu ", (unsigned long long)get_le(payload + 20, 4));
         break;
     }
     default:

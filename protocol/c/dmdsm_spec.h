@@ -8,9 +8,10 @@
 #include <stdint.h>
 
 #define DMDSM_PROTOCOL_VERSION 1u
-#define DMDSM_SPEC_HASH UINT64_C(0xc4ea65c57a7852ae)
+#define DMDSM_SPEC_HASH UINT64_C(0x04673408e4094032)
 #define DMDSM_MAX_PAYLOAD 16448u
 #define DMDSM_MAX_COMMAND_PAYLOAD 64u
+#define DMDSM_SYNC_QUIET_MS 20u
 #define DMDSM_HEADER_SIZE 5u
 #define DMDSM_CRC_SIZE 4u
 /* largest un-stuffed frame and largest COBS frame between delimiters */
@@ -92,6 +93,7 @@ enum dmdsm_msg_type {
     DMDSM_MSG_NAK = 0xf1,
     DMDSM_MSG_WAVEFORM = 0xa0,
     DMDSM_MSG_LOG = 0xa1,
+    DMDSM_MSG_MOTION_SYNC = 0xa2,
 };
 
 /* ping: liveness check and round-trip time (host -> device) */
@@ -286,6 +288,17 @@ struct dmdsm_log {
 };
 size_t dmdsm_pack_log(const struct dmdsm_log *m, uint8_t *out);
 bool dmdsm_unpack_log(const uint8_t *p, size_t len, struct dmdsm_log *m);
+
+/* motion_sync: one burst of step pulses on the motion-sync input (the stage's X STEP line), sent once the input has been quiet for sync_quiet_ms; timestamps in the waveforms' clock (device -> host) */
+#define DMDSM_MOTION_SYNC_FIXED_SIZE 24u
+struct dmdsm_motion_sync {
+    uint32_t burst_id; /* counts bursts since boot, from 0; gaps = lost reports */
+    uint64_t first_edge; /* device clock at the burst's first rising edge [ticks] */
+    uint64_t last_edge; /* device clock at the burst's last rising edge [ticks] */
+    uint32_t edges; /* rising edges in the burst (steps of the X axis) */
+};
+size_t dmdsm_pack_motion_sync(const struct dmdsm_motion_sync *m, uint8_t *out);
+bool dmdsm_unpack_motion_sync(const uint8_t *p, size_t len, struct dmdsm_motion_sync *m);
 
 /* static facts about one message type */
 struct dmdsm_msg_info {

@@ -14,6 +14,8 @@ static struct {
     int arms, disarms;
     uint8_t wire[1 << 20];
     size_t wire_len;
+    int locks;      /* sync_lock(true) minus sync_lock(false): 0 between polls */
+    int max_locks;
 } B;
 
 static void arm_capture(void *ctx, const struct dmdsm_set_config *cfg)
@@ -34,8 +36,16 @@ static void tx_start(void *ctx, const uint8_t *p, size_t n)
     }
 }
 
-static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
-                                           tx_start, tx_busy};
+static void sync_lock(void *ctx, bool locked)
+{
+    (void)ctx;
+    B.locks += locked ? 1 : -1;
+    if (B.locks > B.max_locks)
+        B.max_locks = B.locks;
+}
+
+static const struct dmdsm_board_ops ops = {NULL,      arm_capture, disarm_capture, now_ticks,
+                                           tx_start, tx_busy,     sync_lock};
 static const struct dmdsm_board_info info = {"test board", 1000000u, 3333333u, 8192u, 0};
 static struct dmdsm_core core;
 
@@ -491,6 +501,45 @@ static void test_clock_sync(void)
     CHECK(r.host_time_ns == m.host_time_ns && r.device_ticks == 12345);
 }
 
+/* a burst of step edges is one motion_sync once quiet for DMDSM_SYNC_QUIET_MS, across a wrap */
+static void test_motion_sync_bursts(void)
+{
+    reset();
+    const uint32_t ms = info.tick_hz / 1000u;
+    B.now = 0xFFFFFF00u - 30u * ms;
+    dmdsm_core_poll(&core);
+    uint32_t t = B.now + 1000u;
+    for (int i = 0; i < 500; i++, t += 123u) /* 500 steps, crossing the 32-bit wrap */
+        dmdsm_core_sync_edge(&core, t);
+    uint32_t last = t - 123u;
+    B.now = last + (DMDSM_SYNC_QUIET_MS - 1u) * ms; /* not quiet long enough yet */
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(n_msgs == 0);
+    B.now = last + DMDSM_SYNC_QUIET_MS * ms;
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(n_msgs == 1 && msgs[0].type == DMDSM_MSG_MOTION_SYNC);
+    struct dmdsm_motion_sync m;
+    memset(&m, 0, sizeof m);
+    CHECK(dmdsm_unpack_motion_sync(msgs[0].payload, msgs[0].len, &m));
+    uint64_t first = 0xFFFFFF00u - 30u * ms + 1000u;
+    CHECK(m.burst_id == 0 && m.edges == 500 && m.first_edge == first);
+    CHECK(m.last_edge == first + 499u * 123u && m.last_edge > 0xFFFFFFFFull);
+    CHECK(B.locks == 0 && B.max_locks == 1);
+    /* the next move is the next burst */
+    dmdsm_core_sync_edge(&core, B.now + 5u);
+    dmdsm_core_sync_edge(&core, B.now + 9u);
+    B.now += 9u + 25u * ms;
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(n_msgs == 1 && dmdsm_unpack_motion_sync(msgs[0].payload, msgs[0].len, &m));
+    CHECK(m.burst_id == 1 && m.edges == 2 && m.last_edge - m.first_edge == 4u);
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(n_msgs == 0); /* reported once */
+}
+
 int main(void)
 {
     test_ping_identify();
@@ -508,6 +557,7 @@ int main(void)
     test_integrity_fault_is_counted_not_averaged();
     test_unavailable_capture_naks_arm();
     test_clock_sync();
+    test_motion_sync_bursts();
     if (failures) {
         fprintf(stderr, "test_core: %d check(s) failed\n", failures);
         return 1;

@@ -222,4 +222,5 @@ void dmdsm_core_poll(struct dmdsm_core *c)
     }
     if (c->state == DMDSM_STATE_SENDING && c->wave_count == 0)
         c->state = DMDSM_STATE_IDLE;
+    dmdsm_core_sync_poll(c);
 }

@@ -24,6 +24,9 @@
  *   tx_start       Start sending n bytes without blocking (DMA or a FIFO the
  *                  board drains). The bytes stay valid until tx_busy() is false.
  *   tx_busy        True while a tx_start transfer is still going out.
+ *   sync_lock      Hold off (true) or release (false) the interrupt that calls
+ *                  dmdsm_core_sync_edge(); an edge meanwhile must stay latched.
+ *                  NULL where that interrupt cannot preempt the main loop.
  */
 struct dmdsm_board_ops {
     void *ctx;
@@ -32,6 +35,7 @@ struct dmdsm_board_ops {
     uint32_t (*now_ticks)(void *ctx);
     void (*tx_start)(void *ctx, const uint8_t *p, size_t n);
     bool (*tx_busy)(void *ctx);
+    void (*sync_lock)(void *ctx, bool locked);
 };
 
 /* Static facts a board reports in identify_reply. */

@@ -55,6 +55,11 @@ struct dmdsm_core {
     uint64_t avg_first_edge;
     uint32_t avg_phase_sum;
     struct dmdsm_counters count;
+    /* motion-sync input (sync.c): written by the board's edge interrupt, read by poll */
+    volatile uint32_t sync_first; /* 32-bit ticks of the open burst's first edge */
+    volatile uint32_t sync_last;  /* ... and of its latest edge */
+    volatile uint32_t sync_edges; /* edges in the open burst; 0 = no burst open */
+    uint32_t sync_burst_id;       /* next motion_sync's burst_id */
     /* receive */
     struct dmdsm_decoder rx;
     uint8_t rx_buf[DMDSM_CORE_RX_CAP];
@@ -89,6 +94,10 @@ enum dmdsm_capture {
  * phase in ticks, and how it ended (enum dmdsm_capture) */
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
                              uint32_t edge_ticks, uint16_t phase, enum dmdsm_capture result);
+/* a rising edge on the motion-sync input at 32-bit ticks (the board's capture interrupt) */
+void dmdsm_core_sync_edge(struct dmdsm_core *c, uint32_t ticks);
+/* from poll: report a burst that has been quiet for DMDSM_SYNC_QUIET_MS */
+void dmdsm_core_sync_poll(struct dmdsm_core *c);
 /* run from the main loop: starts queued transfers, checks the trigger timeout */
 void dmdsm_core_poll(struct dmdsm_core *c);
 /* current time in ticks, 64-bit */

@@ -95,7 +95,7 @@ static bool op_tx_busy(void *ctx)
 }
 
 static const struct dmdsm_board_ops ops = {NULL, op_arm, op_disarm, op_now, op_tx_start,
-                                           op_tx_busy};
+                                           op_tx_busy, NULL};
 
 /* why arm is refused: the failure that left the board without acquisition, or 0 */
 static uint8_t capture_error(void)

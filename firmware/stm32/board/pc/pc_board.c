@@ -53,8 +53,8 @@ static bool tx_busy(void *ctx)
     return ((struct dmdsm_pc *)ctx)->tx_left != 0;
 }
 
-static const struct dmdsm_board_ops ops_template = {NULL, arm_capture, disarm_capture,
-                                                    now_ticks, tx_start, tx_busy};
+static const struct dmdsm_board_ops ops_template = {NULL,     arm_capture, disarm_capture,
+                                                    now_ticks, tx_start, tx_busy, NULL};
 
 struct dmdsm_pc *dmdsm_pc_new(const char *name, uint32_t tick_hz, uint32_t adc_rate_hz,
                               uint16_t max_samples, uint32_t ticks)
@@ -118,6 +118,13 @@ void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge
                                                                : DMDSM_CAPTURE_OK;
     d->armed = 0; /* the core re-arms for the next shot */
     dmdsm_core_capture_done(&d->core, samples, edge_ticks, phase, r);
+}
+
+/* rising edges on the motion-sync input, at 32-bit ticks, in time order */
+void dmdsm_pc_sync_edges(struct dmdsm_pc *d, const uint32_t *ticks, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        dmdsm_core_sync_edge(&d->core, ticks[i]);
 }
 
 void dmdsm_pc_poll(struct dmdsm_pc *d)

@@ -25,6 +25,7 @@ int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg);
  * 1 = ADC overrun, 2 = sample-integrity fault (enum dmdsm_capture); only good ones are averaged */
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
                       uint16_t phase, int result);
+void dmdsm_pc_sync_edges(struct dmdsm_pc *d, const uint32_t *ticks, size_t n);
 void dmdsm_pc_poll(struct dmdsm_pc *d);
 /* enum dmdsm_state */
 uint8_t dmdsm_pc_state(const struct dmdsm_pc *d);

@@ -91,7 +91,7 @@ static bool tx_busy(void *ctx)
 }
 
 static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
-                                           tx_start, tx_busy};
+                                           tx_start, tx_busy, NULL};
 static const struct dmdsm_board_info info = {"QEMU mps2-an500 test pattern", SYSCLK_HZ,
                                              3333333u, MAX_SAMPLES, 0};
 

@@ -1,0 +1,129 @@
+"""Fly scanning's pure part: line speed, ramps, Marlin's trapezoid in time, and shot placement.
+
+A fly line is one G1 along X from rest to rest. Marlin runs it as a trapezoid in step rates
+that starts and ends at MINIMAL_STEP_RATE (120 steps/s), not at zero. The sensor board
+time-stamps the X STEP pulses (first, last, count: the motion_sync message) in the clock of
+its waveforms, so each shot is placed by `LineMotion.x_at` on the model anchored at the first
+step, with the time scaled so the model's last step falls on the measured one (Marlin's
+crystal against the sensor's). docs/scanning.md gives the error budget.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+MINIMAL_STEP_RATE = 120.0  # steps/s: Marlin's lowest step rate of a moving block
+SCALE_TOLERANCE = 2e-3     # |measured / modelled line duration - 1| above this: not our move
+
+
+def line_speed_mm_s(step_mm: float, laser_hz: float, average: int) -> float:
+    """Speed (mm/s) that puts consecutive averaged waveforms step_mm apart."""
+    return step_mm * laser_hz / average
+
+
+def ramp_mm(v_mm_s: float, accel_mm_s2: float, step_mm: float) -> float:
+    """Run-up (and run-out) length (mm) beyond the measured part: the distance to reach v
+    from rest, one waveform's travel, and 1 mm to spare."""
+    return v_mm_s * v_mm_s / (2 * accel_mm_s2) + step_mm + 1.0
+
+
+@dataclass(frozen=True)
+class LineMotion:
+    """Marlin's rest-to-rest move of one axis: x0 -> x1 (mm) at up to v (mm/s), accel a
+    (mm/s^2), steps_per_mm; positions in time since the first STEP pulse (s)."""
+
+    x0: float
+    x1: float
+    v: float
+    a: float
+    steps_per_mm: float
+
+    @property
+    def n(self) -> int:
+        """Steps of the move (whole steps between the two quantised ends)."""
+        return abs(round(self.x1 * self.steps_per_mm) - round(self.x0 * self.steps_per_mm))
+
+    @property
+    def direction(self) -> float:
+        """+1 towards larger X, -1 towards smaller."""
+        return 1.0 if self.x1 >= self.x0 else -1.0
+
+    def _rates(self) -> tuple[float, float, float, float]:
+        """(start rate, peak rate, acceleration in steps/s^2, steps to the peak)."""
+        k = self.steps_per_mm
+        r0 = MINIMAL_STEP_RATE
+        A = self.a * k
+        peak = max(self.v * k, r0)
+        d = (peak * peak - r0 * r0) / (2 * A)
+        if 2 * d > self.n:  # a triangle: never reaches v
+            peak = math.sqrt(A * self.n + r0 * r0)
+            d = self.n / 2
+        return r0, peak, A, d
+
+    def steps_at(self, t: np.ndarray) -> np.ndarray:
+        """Steps done (continuous) t seconds after the first STEP pulse."""
+        r0, r1, A, d = self._rates()
+        t_acc = (r1 - r0) / A
+        t_cruise = (self.n - 2 * d) / r1
+        t = np.clip(np.asarray(t, dtype=float), 0.0, 2 * t_acc + t_cruise)
+        acc = r0 * t + 0.5 * A * t * t
+        cruise = d + r1 * (t - t_acc)
+        tau = t - t_acc - t_cruise
+        dec = self.n - d + r1 * tau - 0.5 * A * tau * tau
+        return np.where(t < t_acc, acc, np.where(t < t_acc + t_cruise, cruise, dec))
+
+    def time_of_step(self, s: float) -> float:
+        """Seconds after the first STEP pulse when s steps (continuous) are done."""
+        r0, r1, A, d = self._rates()
+        t_acc = (r1 - r0) / A
+        if s < d:
+            return (math.sqrt(r0 * r0 + 2 * A * s) - r0) / A
+        if s <= self.n - d:
+            return t_acc + (s - d) / r1
+        x = s - (self.n - d)
+        return t_acc + (self.n - 2 * d) / r1 + (r1 - math.sqrt(max(r1 * r1 - 2 * A * x,
+                                                                    0.0))) / A
+
+    @property
+    def last_step_s(self) -> float:
+        """When the last STEP pulse comes (s after the first): pulse k at k - 1 steps done."""
+        return self.time_of_step(self.n - 1)
+
+    @property
+    def cruise_s(self) -> tuple[float, float]:
+        """(start, end) of the constant-speed part (s after the first pulse)."""
+        r0, r1, A, d = self._rates()
+        t_acc = (r1 - r0) / A
+        return t_acc, t_acc + (self.n - 2 * d) / r1
+
+    def x_at(self, t: np.ndarray) -> np.ndarray:
+        """Axis position (mm) t seconds after the first STEP pulse: pulse k has made k steps,
+        so the mean over the step's duration is half a step past the continuous count."""
+        s = np.minimum(self.steps_at(t) + 0.5, self.n)
+        x0 = round(self.x0 * self.steps_per_mm) / self.steps_per_mm
+        return x0 + self.direction * s / self.steps_per_mm
+
+
+def place_shots(motion: LineMotion, first_edge_ticks: int, last_edge_ticks: int,
+                tick_hz: float, timestamps: np.ndarray, n_average: int, laser_period_s: float,
+                ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Each averaged waveform's mean X (mm) and whether all its shots fall in the cruise;
+    and the time scale (measured / modelled line duration).
+
+    timestamps: device ticks of each waveform's first shot; its shots follow at
+    laser_period_s. Raises ValueError if the measured duration does not fit the model."""
+    measured = (last_edge_ticks - first_edge_ticks) / tick_hz
+    scale = measured / motion.last_step_s if motion.last_step_s > 0 else 1.0
+    if not abs(scale - 1.0) <= SCALE_TOLERANCE:
+        raise ValueError(f"the X move took {measured:.4f} s, the planner model says "
+                         f"{motion.last_step_s:.4f} s")
+    t_first = (np.asarray(timestamps, dtype=np.float64) - first_edge_ticks) / tick_hz
+    k = np.arange(n_average) * laser_period_s
+    t = (t_first[:, None] + k[None, :]) / scale  # in the stage's clock
+    x = motion.x_at(t).mean(axis=1)
+    c0, c1 = motion.cruise_s
+    cruise = (t[:, 0] >= c0) & (t[:, -1] <= c1)
+    return x, cruise, scale

@@ -1,0 +1,273 @@
+"""Fly scanning: each plan line is one constant-speed X move while the sensor streams, each
+waveform placed at the position it was fired at; stored and resumed line by line.
+
+Per line: move to the run-up start and stop (M400); arm continuously; G1 through the line at
+the speed that spaces the waveforms step_mm apart; M400; wait for the X STEP burst's
+motion_sync; disarm. The line is kept only if every waveform arrived (no shot-id gap, no
+device drop, overrun or integrity fault), exactly one X burst of the planned step count came
+after the arm, its duration fits the planner model, and the waveforms' clock agrees with the
+clock sync; otherwise it is measured again (at most RETRIES times). Its waveforms inside the
+cruise and the planned span are ranged and written in one append, so a file never holds part
+of a line: an interrupted scan resumes at the next line.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmdsm.marlin_patch import MachineLimits
+
+from ..links.sensor import fit_clock
+from ..links.transport import LinkError
+from .executor import PointRanger, ScanStats, _surface
+from .fly import LineMotion, line_speed_mm_s, place_shots, ramp_mm
+from .plan import Point, ScanPlan
+from .scanfile import PHASES, ScanWriter
+
+RETRIES = 3          # measurements of one line before the scan stops
+SYNC_WAIT_S = 1.0    # after M400, how long the X burst's report may take
+LASER_TOLERANCE = 0.02  # measured laser rate vs the plan's laser_hz
+JUMP_STEPS = 3.0     # a neighbour's distance this many steps away: a depth edge (71 deg)
+
+
+class FlyScanError(LinkError):
+    """A fly line failed its checks RETRIES times, or the plan does not fit the hardware."""
+
+
+class LineRejected(Exception):
+    """This measurement of a line is not kept; str() says why."""
+
+
+@dataclass
+class FlyLine:
+    """One raster line: its plan points (in execution order) and where it is."""
+
+    index: int
+    points: list[Point]
+
+    @property
+    def x_first(self) -> float:
+        """X of the first planned column (mm)."""
+        return self.points[0].x
+
+    @property
+    def x_last(self) -> float:
+        """X of the last planned column (mm)."""
+        return self.points[-1].x
+
+    @property
+    def direction(self) -> float:
+        """+1 if the line runs towards larger X."""
+        return 1.0 if self.x_last >= self.x_first else -1.0
+
+
+def fly_lines(points: list[Point]) -> list[FlyLine]:
+    """The plan's points grouped into lines (same angle and level, consecutive)."""
+    lines: list[FlyLine] = []
+    for p in points:
+        if lines and (lines[-1].points[0].angle_index, lines[-1].points[0].level) == (
+                p.angle_index, p.level):
+            lines[-1].points.append(p)
+        else:
+            lines.append(FlyLine(len(lines), [p]))
+    return lines
+
+
+def fly_speed(plan: ScanPlan, machine: MachineLimits) -> tuple[float, float]:
+    """(line speed mm/s as Marlin will run it, i.e. from the whole-number F in mm/min;
+    acceleration mm/s^2 of an X move)."""
+    f_mm_min = round(line_speed_mm_s(plan.step_mm, plan.laser_hz, plan.average) * 60)
+    ax = machine.axis("X")
+    accel = min(machine.default_acceleration, machine.max_acceleration[ax])
+    return min(f_mm_min / 60.0, machine.max_feedrate[ax]), accel
+
+
+def line_ends(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> tuple[float, float]:
+    """X (mm) where the line's move starts and ends: the planned span plus the ramps."""
+    v, a = fly_speed(plan, machine)
+    r = ramp_mm(v, a, plan.step_mm)
+    return line.x_first - line.direction * r, line.x_last + line.direction * r
+
+
+def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Point],
+                 writer: ScanWriter, ranger: PointRanger, machine: MachineLimits,
+                 progress: Callable[[int, int, dict], None] | None = None) -> ScanStats:
+    """Measure the lines after the last one in the file; returns what this run did."""
+    stats = ScanStats()
+    t_start = time.monotonic()
+    lines = fly_lines(points)
+    done = writer.data["point_index"][:writer.n_done]
+    todo = lines[int(done.max()) + 1:] if len(done) else lines
+    exchanges = sensor.clock_exchanges(16)
+    clock = fit_clock(exchanges)
+    tick_hz = float(sensor.identity.tick_hz)
+    unix_minus_monotonic = time.time() - time.monotonic()
+    v, a = fly_speed(plan, machine)
+    spu = machine.steps_per_unit[machine.axis("X")]
+    if todo:  # approach: into the front plane along Y first, as the plan check assumed
+        here = stage.where()
+        stage.move(x=here["X"], y=todo[0].points[0].y, z=here["Z"],
+                   feed_mm_min=plan.feed_mm_min)
+    for line in todo:
+        p0 = line.points[0]
+        xs, xe = line_ends(line, plan, machine)
+        exchanges += sensor.clock_exchanges(4)  # a longer baseline: a better drift
+        exchanges = exchanges[-400:]
+        clock = fit_clock(exchanges)
+        reasons: list[str] = []
+        attempts = 0
+        while attempts < RETRIES:
+            attempts += 1
+            timing = dict.fromkeys(PHASES, 0.0)
+            t0 = time.monotonic()
+            stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg, feed_mm_min=plan.feed_mm_min)
+            stage.wait()
+            t1 = time.monotonic()
+            timing["move"] = t1 - t0
+            try:
+                rows = _measure(stage, sensor, plan, line, LineMotion(xs, xe, v, a, spu),
+                                clock, v)
+                break
+            except LineRejected as e:
+                reasons.append(str(e))
+                stats.lost += 1
+                rows = None
+            finally:
+                timing["acquire"] = time.monotonic() - t1
+        if rows is None:
+            raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
+                               f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
+        t2 = time.monotonic()
+        values = _range(rows, line, ranger, attempts, unix_minus_monotonic, clock,
+                        JUMP_STEPS * plan.step_mm)
+        timing["ranging"] = time.monotonic() - t2
+        n = len(rows["samples"])
+        values["phase_time_s"] = np.tile([timing[k] / n for k in PHASES], (n, 1))
+        t3 = time.monotonic()
+        writer.append_many(rows["samples"], **values)
+        stats.store_s += time.monotonic() - t3
+        stats.stored += n
+        for k in PHASES:
+            stats.phase_s[k] += timing[k]
+        if progress is not None:
+            progress(writer.n_done, len(points), timing)
+    stats.clock = {"drift_ppm": round((clock.ticks_per_s / tick_hz - 1) * 1e6, 3),
+                   "drift_std_ppm": round(clock.rate_std / tick_hz * 1e6, 3),
+                   "residual_us": round(clock.residual_s * 1e6, 3),
+                   "rtt_ms": round(clock.rtt_s * 1e3, 3), "exchanges": len(exchanges)}
+    stats.wall_s = time.monotonic() - t_start
+    return stats
+
+
+def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
+             motion: LineMotion, clock: object, v: float) -> dict:
+    """One pass along the line; the kept waveforms and where they were, or LineRejected."""
+    bursts_before = {m.burst_id for m in sensor.motion_syncs}
+    t_arm = time.monotonic()
+    sensor.stream_start()
+    try:
+        stage.move(x=motion.x1, feed_mm_min=round(v * 60), wait=False)
+        stage.wait()
+        end = time.monotonic() + SYNC_WAIT_S
+        while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
+            new = [m for m in list(sensor.motion_syncs) if m.burst_id not in bursts_before]
+            if any(m.edges == motion.n for m in new):
+                break
+            time.sleep(0.005)
+    finally:
+        waves, change = sensor.stream_stop()
+    t_stop = time.monotonic()
+    if not waves:
+        raise LineRejected("no waveform arrived while the line ran")
+    ids = np.array([w.shot_id for w in waves])
+    if np.any(ids != np.arange(len(ids))) or any(change.values()):
+        raise LineRejected(f"waveforms were lost (shot ids {ids[0]}..{ids[-1]} for "
+                           f"{len(ids)} received; device counters {change})")
+    ts = np.array([w.timestamp for w in waves], dtype=np.int64)
+    host_t = clock.to_host_s(ts)
+    slack = 0.05 + 10 * clock.residual_s
+    if np.any(np.diff(ts) <= 0) or host_t[0] < t_arm - slack or host_t[-1] > t_stop + slack:
+        raise LineRejected("the sensor clock jumped during the line (a board reset?): the "
+                           "waveform times do not follow the clock sync")
+    new = [m for m in list(sensor.motion_syncs)
+           if m.burst_id not in bursts_before and m.first_edge > ts[0]]
+    if len(new) != 1 or new[0].edges != motion.n:
+        got = ", ".join(str(m.edges) for m in new) or "none"
+        raise LineRejected(f"expected one X step burst of {motion.n} steps after the arm, got "
+                           f"{got}: is the X STEP line wired to the sensor's sync input "
+                           f"(docs/firmware.md)?")
+    n_avg = int(waves[0].n_average)
+    tick_hz = float(sensor.identity.tick_hz)
+    period = float(np.median(np.diff(ts))) / n_avg / tick_hz if len(ts) > 1 else \
+        1.0 / plan.laser_hz
+    if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
+        raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
+                           f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
+    try:
+        x, cruise, scale = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
+                                       tick_hz, ts, n_avg, period)
+    except ValueError as e:
+        raise LineRejected(str(e)) from None
+    lo = min(line.x_first, line.x_last) - plan.step_mm / 2
+    hi = max(line.x_first, line.x_last) + plan.step_mm / 2
+    keep = cruise & (x >= lo) & (x <= hi)
+    if not keep.any():
+        raise LineRejected("no waveform fell inside the line's cruise")
+    idx = np.nonzero(keep)[0]
+    return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
+            "x": x[idx], "timestamp": ts[idx], "host_t": host_t[idx],
+            "trigger_phase": np.array([waves[i].trigger_phase for i in idx]),
+            "n_average": np.array([waves[i].n_average for i in idx]), "scale": scale}
+
+
+def straddles(d_mm: np.ndarray, x_mm: np.ndarray, jump_mm: float) -> np.ndarray:
+    """Waveforms whose footprint (the travel over their averaged shots) may take in two
+    surfaces: a neighbour along the line with no distance, or one more than jump_mm away.
+    Such an average mixes the returns of both (a block's edge and the side face behind it)
+    into a distance that belongs to neither, so it is dropped, not kept with a wrong std."""
+    ok = np.isfinite(d_mm)
+    bad = np.zeros(len(d_mm), bool)
+    for k in (1, -1):  # the previous and the next waveform
+        nb = np.roll(d_mm, k)
+        near = np.abs(np.roll(x_mm, k) - x_mm) < 1.5 * np.median(np.abs(np.diff(x_mm))) \
+            if len(x_mm) > 1 else np.zeros(len(d_mm), bool)
+        edge = ok & near & (~np.isfinite(nb) | (np.abs(nb - d_mm) > jump_mm))
+        if k == 1:
+            edge[0] = False
+        else:
+            edge[-1] = False
+        bad |= edge
+    return bad
+
+
+def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
+           unix_minus_monotonic: float, clock: object, jump_mm: float) -> dict:
+    """Distances and the file's per-row values for a kept line."""
+    p0 = line.points[0]
+    n = len(rows["x"])
+    out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
+                                            "snr_us_db")}
+    previous = None
+    for i in range(n):
+        r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous)
+        previous = _surface(r)
+        nan = (np.nan, 0.0)
+        for m in ("oa", "us"):
+            out[f"distance_{m}_mm"].append(r.get(m, nan)[0])
+            out[f"snr_{m}_db"].append(r.get(m, nan)[1])
+    for m in ("oa", "us"):
+        d = np.asarray(out[f"distance_{m}_mm"], dtype=float)
+        out[f"distance_{m}_mm"] = np.where(straddles(d, rows["x"], jump_mm), np.nan, d)
+    pos = np.column_stack([rows["x"], np.full(n, p0.y), np.full(n, p0.z)])
+    return {"stage_position_mm": pos, "theta_deg": np.full(n, p0.theta_deg),
+            "level": np.full(n, p0.level), "column": np.arange(n),
+            "angle_index": np.full(n, p0.angle_index), "received": np.ones(n, bool),
+            "attempts": np.full(n, attempts), "n_average": rows["n_average"],
+            "timestamp": rows["timestamp"], "trigger_phase": rows["trigger_phase"],
+            **{k: np.asarray(v) for k, v in out.items()},
+            "host_time": rows["host_t"] + unix_minus_monotonic,
+            "point_index": np.full(n, line.index)}

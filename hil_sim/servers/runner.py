@@ -47,6 +47,8 @@ class SimConfig:
     # "" runs the firmware core (PC build); "nucleo" or an ELF path runs that NUCLEO ELF
     # on the rehosted H743 (hil_sim/boards/rehost)
     sensor_firmware: str = ""
+    # the motion-sync wire from the stage's X STEP line to the sensor board (docs/firmware.md)
+    sync_wire: bool = True
 
 
 class Simulation:
@@ -71,13 +73,16 @@ class Simulation:
             from ..boards.rehost.board import RehostedSensor  # unicorn only when asked
             self.sensor = RehostedSensor(self.scene, self.pose, self.model, seed=cfg.seed,
                                          rep_rate_hz=cfg.rep_rate_hz,
-                                         elf=cfg.sensor_firmware)
+                                         elf=cfg.sensor_firmware,
+                                         sync_edges=self.x_step_edges if cfg.sync_wire
+                                         else None)
         else:
             self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
                                       rep_rate_hz=cfg.rep_rate_hz,
                                       link_bytes_per_s=cfg.sensor_link_bytes_per_s,
                                       frozen_noise=cfg.frozen_noise,
-                                      sync_edges=self.x_step_edges)
+                                      sync_edges=self.x_step_edges if cfg.sync_wire
+                                      else None)
         self.channels = {
             (name, way): FaultyChannel(link[name], seed=cfg.seed * 4 + i)
             for i, (name, way) in enumerate((n, w) for n in ("sensor", "stage")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MINIMAL_STEP_RATE = 120.0  # steps/s: Marlin's lowest step rate of a moving block
-SCALE_TOLERANCE = 2e-3     # |measured / modelled line duration - 1| above this: not our move
+SCALE_TOLERANCE = 0.01     # |measured / modelled duration - 1| above this: not the move we made
 
 
 def line_speed_mm_s(step_mm: float, laser_hz: float, average: int) -> float:

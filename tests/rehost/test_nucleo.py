@@ -133,3 +133,17 @@ def test_a_start_up_failure_is_logged_named_and_blinked(fault, code):
     red = [level for _, pin, level in host.sim.sensor.mcu.gpio["B"].log if pin == 14]
     assert red.count(1) >= 2  # a blink code, not a steady light
     assert host.sim.sensor.violation is None
+
+
+def test_the_x_step_line_is_time_stamped_by_tim2_ch2_and_reported_as_one_burst():
+    host = start()
+    host.request("identify")
+    sim = host.sim
+    sim.write("stage", b"G1 X10 F3000\n")  # 800 steps of X from rest
+    msgs = host.collect(1.0)
+    assert sim.sensor.violation is None, str(sim.sensor.violation)
+    syncs = [m for m in msgs if m.name == "motion_sync"]
+    assert len(syncs) == 1 and syncs[0].edges == 800
+    edges = sim.stage.planner.step_edges(0, 0.0, 10.0)
+    span = (edges[-1] - edges[0]) * 240e6
+    assert abs((syncs[0].last_edge - syncs[0].first_edge) - span) <= 2  # ticks

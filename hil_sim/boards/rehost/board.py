@@ -64,12 +64,31 @@ class Laser:
         return (math.floor(t * self.rate_hz) + 1) / self.rate_hz
 
 
+class SyncInput:
+    """The motion-sync wire: rising edges (s) from the stage's X STEP line."""
+
+    LOOKAHEAD_S = 0.002  # how far ahead the next edge is looked for (an idle jump's bound)
+
+    def __init__(self, edges: Callable[[float, float], np.ndarray]) -> None:
+        self._edges = edges
+
+    def edges(self, t0: float, t1: float) -> np.ndarray:
+        """Times (s) of the edges in (t0, t1]."""
+        return self._edges(t0, t1)
+
+    def next_edge(self, t: float) -> float:
+        """Time (s) of the first edge after t, or inf if none within the look-ahead."""
+        e = self._edges(t, t + self.LOOKAHEAD_S)
+        return float(e[0]) if len(e) else math.inf
+
+
 class RehostedSensor:
     """The NUCLEO firmware ELF on a rehosted H743 with laser, physics and link."""
 
     def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
                  seed: int = 0, rep_rate_hz: float = 1000.0, elf: str | Path | None = None,
-                 rev: str = "V", faults: tuple[str, ...] = ()) -> None:
+                 rev: str = "V", faults: tuple[str, ...] = (),
+                 sync_edges: Callable[[float, float], np.ndarray] | None = None) -> None:
         self.scene, self.pose = scene, pose
         self.model = model or SensorModel()
         self.seed = seed
@@ -79,6 +98,9 @@ class RehostedSensor:
         self.mcu.analog = self.analog
         self.mcu.event_sources += [lambda: self.laser.next_edge(self.mcu.t),
                                    self.mcu.usart3.next_event]
+        if sync_edges is not None:  # the stage's X STEP line on PB3 (TIM2 CH2)
+            self.mcu.sync = SyncInput(sync_edges)
+            self.mcu.event_sources.append(lambda: self.mcu.sync.next_edge(self.mcu.t))
         self.link_blocked = False
         self.violation: RuleViolation | None = None
         self.now = 0.0

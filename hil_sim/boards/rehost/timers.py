@@ -5,7 +5,9 @@ starts TIM8 in trigger mode (ITR1 = TIM2 on TIM8, RM0433 Table 339), so both sta
 tick and TIM8's update k falls on TIM2 tick (k + 1) * (ARR + 1). Laser edges come from
 `machine.laser` (rising time, falling time); CH1 captures the selected edge into CCR1, sets
 CC1IF (CC1OF if it was still set) and raises IRQ 28 when CC1IE is on. Reading CCR1 clears
-CC1IF. The input filter's few-tick delay is not modelled.
+CC1IF. CH2 captures the rising edges of `machine.sync` (the stage's X STEP line, the motion
+sync of docs/firmware.md) into CCR2 the same way (CC2IF, CC2OF, CC2IE; reading CCR2 clears
+CC2IF). The input filter's few-tick delay is not modelled.
 """
 
 from __future__ import annotations
@@ -46,10 +48,12 @@ class Tim2(Peripheral):
         if offset == 0x24:
             self.m.clock_polled()
             return self.ticks_at(self.m.t)
-        if offset == 0x34:
+        if offset in (0x34, 0x38):
             self.advance()
-            self.regs[0x10] = self.regs.get(0x10, 0) & ~2
+            self.regs[0x10] = self.regs.get(0x10, 0) & ~(2 if offset == 0x34 else 4)
             self.action()
+        elif offset == 0x10:
+            self.advance()
         return self.regs.get(offset, 0)
 
     def write(self, offset: int, value: int, size: int = 4) -> None:
@@ -68,7 +72,7 @@ class Tim2(Peripheral):
             self.cnt0, self.t_start = value, self.m.t
         elif offset == 0x10:  # rc_w0
             value &= self.regs.get(0x10, 0)
-        elif offset == 0x0C and value & 2 and self.regs.get(0x10, 0) & 2:
+        elif offset == 0x0C and value & self.regs.get(0x10, 0) & 6:
             self.m.system.set_pending(IRQ_TIM2)
         elif offset == 0x2C and value != 0xFFFFFFFF:
             self.m.violation("unmodelled-register", "TIM2 ARR other than 0xFFFFFFFF")
@@ -81,18 +85,25 @@ class Tim2(Peripheral):
         if laser is None or now <= self.seen:
             return
         ccer, ccmr = self.regs.get(0x20, 0), self.regs.get(0x18, 0)
+        events = []
         if self.running and ccer & 1 and ccmr & 3 == 1:
-            for rise, fall in laser.edges(self.seen, now):
-                self._capture(fall if ccer & 2 else rise)
+            events += [(fall if ccer & 2 else rise, 1) for rise, fall in
+                       laser.edges(self.seen, now)]
+        sync = getattr(self.m, "sync", None)
+        if sync is not None and self.running and ccer & 0x10 and (ccmr >> 8) & 3 == 1:
+            events += [(float(t), 2) for t in sync.edges(self.seen, now)]
+        for t, ch in sorted(events):
+            self._capture(t, ch)
         self.seen = now
 
-    def _capture(self, t: float) -> None:
+    def _capture(self, t: float, ch: int = 1) -> None:
+        flag = 1 << ch  # CC1IF / CC2IF, and the same bit of DIER
         sr = self.regs.get(0x10, 0)
-        if sr & 2:
-            sr |= 1 << 9  # CC1OF: the previous capture was not read
-        self.regs[0x10] = sr | 2
-        self.regs[0x34] = self.ticks_at(t)
-        if self.regs.get(0x0C, 0) & 2:
+        if sr & flag:
+            sr |= flag << 8  # CCxOF: the previous capture was not read
+        self.regs[0x10] = sr | flag
+        self.regs[0x34 if ch == 1 else 0x38] = self.ticks_at(t)
+        if self.regs.get(0x0C, 0) & flag:
             self.m.system.set_pending(IRQ_TIM2)
 
 

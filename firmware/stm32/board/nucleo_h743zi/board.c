@@ -94,8 +94,18 @@ static bool op_tx_busy(void *ctx)
     return serial_tx_busy();
 }
 
-static const struct dmdsm_board_ops ops = {NULL, op_arm, op_disarm, op_now, op_tx_start,
-                                           op_tx_busy, NULL};
+/* the motion-sync edges come from TIM2's interrupt: hold it off while the core reads them */
+static void op_sync_lock(void *ctx, bool locked)
+{
+    (void)ctx;
+    if (locked)
+        irq_disable();
+    else
+        irq_enable();
+}
+
+static const struct dmdsm_board_ops ops = {NULL,        op_arm,     op_disarm,   op_now,
+                                           op_tx_start, op_tx_busy, op_sync_lock};
 
 /* why arm is refused: the failure that left the board without acquisition, or 0 */
 static uint8_t capture_error(void)
@@ -122,6 +132,7 @@ int main(void)
     info = (struct dmdsm_board_info){board_name, clocks.timclk_hz, capture_adc_rate_hz(),
                                      8192u, capture_error()};
     dmdsm_core_init(&core, &ops, &info);
+    capture_sync_to(&core);
     boot_report(&core);
     struct fault_record f;
     bool fault = fault_take(&f);

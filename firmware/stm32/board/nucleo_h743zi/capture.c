@@ -1,5 +1,6 @@
 /* Shot capture: TIM8 paces ADC1 into a circular DMA ring; TIM2 latches the laser edge; no CPU in the sampling path. */
 #include "armv7m.h"
+#include "core.h"
 #include "h743_regs.h"
 #include "nucleo.h"
 
@@ -101,7 +102,7 @@ static void pacing_start(uint32_t T)
 /* TIM2 runs from here on whatever else fails: it is the device clock */
 void capture_init(void)
 {
-    RCC->AHB4ENR |= RCC_AHB4ENR_GPIOAEN;
+    RCC->AHB4ENR |= RCC_AHB4ENR_GPIOAEN | RCC_AHB4ENR_GPIOBEN;
     RCC->AHB1ENR |= RCC_AHB1ENR_DMA1EN;
     RCC->APB1LENR |= RCC_APB1LENR_TIM2EN;
     RCC->APB2ENR |= RCC_APB2ENR_TIM8EN;
@@ -110,6 +111,9 @@ void capture_init(void)
     GPIOA->MODER = (GPIOA->MODER & ~3u) | 2u;
     GPIOA->AFR[0] = (GPIOA->AFR[0] & ~0xFu) | 1u;
     GPIOA->MODER |= 3u << (2 * 6);
+    /* PB3 = TIM2_CH2 (AF1): the stage's X STEP line (motion sync) */
+    GPIOB->MODER = (GPIOB->MODER & ~(3u << (2 * 3))) | (2u << (2 * 3));
+    GPIOB->AFR[0] = (GPIOB->AFR[0] & ~(0xFu << (4 * 3))) | (1u << (4 * 3));
 
     /* TIM8: update every T ticks -> TRGO -> ADC; started by TIM2's TRGO (ITR1) */
     TIM8->PSC = 0;
@@ -119,8 +123,11 @@ void capture_init(void)
     /* TIM2: free-running 32-bit clock, CH1 input capture; TRGO on enable once pacing runs */
     TIM2->PSC = 0;
     TIM2->ARR = 0xFFFFFFFFu;
-    TIM2->CCMR1 = TIM_CCMR1_CC1S_TI1 | (2u << TIM_CCMR1_IC1F_SHIFT); /* 4-sample filter */
-    TIM2->CCER = TIM_CCER_CC1E;
+    TIM2->CCMR1 = TIM_CCMR1_CC1S_TI1 | (2u << TIM_CCMR1_IC1F_SHIFT) | /* 4-sample filters */
+                  TIM_CCMR1_CC2S_TI2 | (2u << TIM_CCMR1_IC2F_SHIFT);
+    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E; /* CH2: rising edges (a step) */
+    TIM2->SR = ~(TIM_SR_CC2IF | TIM_SR_CC2OF);
+    TIM2->DIER = TIM_DIER_CC2IE;
     TIM2->CR1 = TIM_CR1_CEN;
     TIM2->CR2 = TIM_CR2_MMS_ENABLE;
     wait_use_tim2(clocks.timclk_hz);
@@ -144,33 +151,49 @@ void capture_arm(const struct dmdsm_set_config *cfg)
     if (T != cap.T || cap.suspect)
         pacing_start(T); /* suspect: the check failed while nothing was captured */
     cap.cfg = *cfg;
-    TIM2->CCER = TIM_CCER_CC1E | (cfg->trigger_edge ? TIM_CCER_CC1P : 0u);
+    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E | (cfg->trigger_edge ? TIM_CCER_CC1P : 0u);
     TIM2->SR = ~(TIM_SR_CC1IF | TIM_SR_CC1OF);
     cap.edge = 0;
     cap.armed = 1;
-    TIM2->DIER = TIM_DIER_CC1IE;
+    TIM2->DIER = TIM_DIER_CC1IE | TIM_DIER_CC2IE;
 }
 
 void capture_disarm(void)
 {
-    TIM2->DIER = 0;
+    TIM2->DIER = TIM_DIER_CC2IE;
     cap.armed = 0;
     cap.edge = 0;
 }
 
 /* the laser edge: hardware latched CCR1; compute where the burst lies in the ring */
+static struct dmdsm_core *sync_core;
+
+void capture_sync_to(struct dmdsm_core *core)
+{
+    sync_core = core;
+}
+
+/* TIM2: a step on CH2 (motion sync) and/or the laser edge on CH1, each latched in hardware */
 void TIM2_IRQHandler(void)
 {
+    uint32_t sr = TIM2->SR;
+    if (sr & TIM_SR_CC2IF) {
+        uint32_t s = TIM2->CCR2; /* reading CCR2 clears CC2IF */
+        if (sync_core != NULL)
+            dmdsm_core_sync_edge(sync_core, s);
+    }
+    if (!(sr & TIM_SR_CC1IF))
+        return;
     uint32_t e = TIM2->CCR1; /* reading CCR1 clears CC1IF */
     if (!cap.armed) {
-        TIM2->DIER = 0;
+        TIM2->DIER = TIM_DIER_CC2IE;
         return;
     }
     uint32_t since = e - cap.t0;
     uint32_t k = since / cap.T; /* samples 0..k-1 were taken at or before the edge */
     if (before_t0(since) || cap.k0 + k < cap.cfg.pretrigger)
         return; /* sampling (re)started too recently for the pre-trigger: next edge */
-    TIM2->DIER = 0; /* one edge per burst; re-armed by the core */
+    TIM2->DIER = TIM_DIER_CC2IE; /* one edge per burst; re-armed by the core */
     uint32_t next_at = (k + 1u) * cap.T;
     cap.phase = (uint16_t)(next_at - since);
     cap.start = cap.k0 + k - cap.cfg.pretrigger;

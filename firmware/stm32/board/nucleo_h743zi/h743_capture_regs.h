@@ -128,6 +128,12 @@ CHECK_OFFSET(struct tim, BDTR, 0x44);
 #define TIM_CCMR1_IC1F_SHIFT 4u
 #define TIM_CCER_CC1E (1u << 0)
 #define TIM_CCER_CC1P (1u << 1)
+#define TIM_DIER_CC2IE (1u << 2)
+#define TIM_SR_CC2IF (1u << 2)
+#define TIM_SR_CC2OF (1u << 10)
+#define TIM_CCMR1_CC2S_TI2 (1u << 8)
+#define TIM_CCMR1_IC2F_SHIFT 12u
+#define TIM_CCER_CC2E (1u << 4)
 #define TIM_BDTR_MOE (1u << 15)
 
 #endif /* DMDSM_H743_CAPTURE_REGS_H */

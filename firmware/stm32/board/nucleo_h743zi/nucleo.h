@@ -43,6 +43,9 @@ void capture_init(void); /* TIM2 always; ADC1 and pacing when clocks.adc_hz is s
 bool capture_available(void);
 void capture_arm(const struct dmdsm_set_config *cfg);
 void capture_disarm(void);
+struct dmdsm_core;
+/* motion sync: TIM2 CH2 (PB3) rising edges go to this core's dmdsm_core_sync_edge */
+void capture_sync_to(struct dmdsm_core *core);
 uint32_t capture_now(void);
 /* 1 when a burst is complete: samples, edge ticks, phase ticks, and how it ended */
 int capture_poll(const uint16_t **samples, uint32_t *edge, uint16_t *phase,

@@ -27,6 +27,11 @@
 #define DEFAULT_MAX_FEEDRATE          { 200, 200, 25, 25 }
 #define DEFAULT_MAX_ACCELERATION      { 350, 350, 50, 10000 }
 #define DEFAULT_ACCELERATION           350    // printing moves
+//#define CLASSIC_JERK
+#if DISABLED(CLASSIC_JERK)
+  #define JUNCTION_DEVIATION_MM 0.013 // (mm) Distance from real junction edge
+#endif
+//#define S_CURVE_ACCELERATION
 #define FIX_MOUNTED_PROBE
 //#define I_ENABLE_ON 0
 //#define INVERT_I_DIR false

@@ -1,0 +1,206 @@
+"""Fly scanning's pure part against the emulator's Marlin planner: the host's trajectory model
+places a shot where the steppers were, the swept path is checked with its ramps, and the
+waveforms whose footprint takes in a depth edge are found."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dmdsm.host.links.safety import UnsafeMove
+from dmdsm.host.links.sensor import ClockSync
+from dmdsm.host.scan.fly import LineMotion, place_shots, ramp_mm
+from dmdsm.host.scan.fly_executor import FlyLine, LineRejected, _measure, straddles
+from dmdsm.host.scan.plan import PlanError, Point, ScanPlan
+from dmdsm.host.scan.session import checked_points
+from dmdsm.marlin_patch import load_machine
+from dmdsm.sim.boards.motion import Planner
+from dmdsm.sim.physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR
+
+M = load_machine()
+X = M.axis("X")
+SPU = M.steps_per_unit[X]
+ACCEL = min(M.default_acceleration, M.max_acceleration[X])
+
+
+def emulated(x0: float, x1: float, v: float):
+    """The emulator's planner running one X move from rest; (planner, its block)."""
+    p = Planner(M)
+    start = p.to_steps([x0, 0, 0, 0])
+    p.steps = start.copy()
+    block = p.add(0.0, start, p.to_steps([x1, 0, 0, 0]), v)
+    p.update(10.0)
+    return p, block
+
+
+@settings(max_examples=60, deadline=None)
+@given(x0=st.floats(0, 200), length=st.floats(2, 200), v=st.floats(5, 200),
+       back=st.booleans(), frac=st.lists(st.floats(0, 1), min_size=5, max_size=20))
+def test_the_host_model_puts_each_instant_within_a_step_of_the_emulated_marlin(x0, length, v,
+                                                                             back, frac):
+    x1 = x0 - length if back else x0 + length
+    p, block = emulated(x0, x1, v)
+    model = LineMotion(x0, x1, v, ACCEL, SPU)
+    edges = p.step_edges(X, -1.0, 100.0)
+    assert len(edges) == model.n  # one STEP pulse per step
+    first = edges[0]
+    assert model.last_step_s == pytest.approx(edges[-1] - first, abs=1e-6)
+    t = np.asarray(frac) * (edges[-1] - first)
+    truth = np.array([p.position_at(first + ti)[X] for ti in t])
+    # the steppers hold whole steps; the model is their mean: within half a step, plus
+    # rounding of the inverse at a step's very edge
+    assert np.all(np.abs(model.x_at(t) - truth) <= 0.5 / SPU + 1e-6)
+
+
+def test_the_emulated_planner_keeps_speed_through_collinear_blocks_and_stops_at_a_reversal():
+    p = Planner(M)
+    z = p.to_steps([100, 100, 10, 0])
+    p.steps = z.copy()
+    moves = [p.add(0.0, p.to_steps([100 + 20 * i, 100, 10, 0]),
+                   p.to_steps([120 + 20 * i, 100, 10, 0]), 100.0) for i in range(3)]
+    assert moves[0].exit == pytest.approx(moves[1].entry) and moves[1].entry > 50
+    one = Planner(M)
+    single = one.add(0.0, z, one.to_steps([160, 100, 10, 0]), 100.0)
+    total = sum(m.duration for m in moves)
+    assert total == pytest.approx(single.duration, rel=0.02)  # no stop between them
+    back = p.add(0.0, p.to_steps([160, 100, 10, 0]), p.to_steps([150, 100, 10, 0]), 100.0)
+    assert back.entry < 0.1 and moves[-1].exit < 0.1  # a reversal goes through rest
+
+
+def test_a_right_angle_corner_runs_at_the_junction_deviation_speed():
+    p = Planner(M)
+    a = p.add(0.0, p.to_steps([100, 100, 10, 0]), p.to_steps([150, 100, 10, 0]), 100.0)
+    b = p.add(0.0, p.to_steps([150, 100, 10, 0]), p.to_steps([150, 150, 10, 0]), 100.0)
+    s = np.sqrt(0.5 * (1 - 0.0))  # sin(theta/2) of a 90 degree turn
+    want = np.sqrt(ACCEL * M.junction_deviation_mm * s / (1 - s))
+    assert b.entry == pytest.approx(want, rel=1e-6) and a.exit == pytest.approx(want, rel=1e-6)
+
+
+def test_the_first_block_after_idle_waits_unless_three_are_queued():
+    p = Planner(M)
+    z = np.zeros(4, np.int64)
+    m = p.add(1.0, z, p.to_steps([10, 0, 0, 0]), 50.0)
+    p.update(1.099)
+    assert m.t0 is None
+    p.update(1.2)
+    assert m.t0 == pytest.approx(1.1)
+    q = Planner(M)
+    blocks = [q.add(2.0 + 0.01 * i, q.to_steps([10 * i, 0, 0, 0]),
+                    q.to_steps([10 * i + 10, 0, 0, 0]), 50.0) for i in range(3)]
+    q.update(2.03)
+    assert blocks[0].t0 == pytest.approx(2.02)  # delivered when the third arrived
+
+
+def test_shots_are_placed_only_when_the_measured_duration_fits_the_model():
+    model = LineMotion(100.0, 180.0, 80.0, ACCEL, SPU)
+    tick_hz = 240e6
+    first = 10_000_000
+    last = first + round(model.last_step_s * tick_hz)
+    ts = first + np.arange(0, round(model.last_step_s * 1e3), 12) * 240_000
+    x, cruise, scale = place_shots(model, first, last, tick_hz, ts, 12, 1e-3)
+    assert scale == pytest.approx(1.0, abs=1e-8)
+    c0, c1 = model.cruise_s
+    assert cruise.any() and not cruise.all()
+    dx = np.diff(x[cruise])
+    assert np.allclose(dx, 80.0 * 12e-3, atol=0.5 / SPU)  # one waveform apart at cruise
+    with pytest.raises(ValueError, match="planner model"):
+        place_shots(model, first, first + round(model.last_step_s * tick_hz * 1.05), tick_hz,
+                    ts, 12, 1e-3)
+
+
+def test_a_waveform_next_to_a_depth_edge_or_a_miss_is_dropped():
+    x = np.arange(10.0)
+    d = np.array([np.nan, 20.0, 20.1, 20.0, 20.1, 35.0, 35.1, 35.0, 35.1, 35.0])
+    bad = straddles(d, x, 3.0)
+    assert bad.tolist() == [False, True, False, False, True, True, False, False, False, False]
+
+
+def test_a_fly_plan_too_fast_for_the_x_axis_is_refused():
+    with pytest.raises(PlanError, match="above the X axis"):
+        ScanPlan("b", mode="fly", step_mm=4.0, average=8).validate()  # 500 mm/s
+    ScanPlan("b", mode="fly", step_mm=1.0, average=12).validate()
+
+
+def test_the_fly_path_is_checked_with_its_ramps():
+    cal = {"v": TABLE_I_V, "n": TABLE_I_N, "X_R": TABLE_I_XR}
+    half = 405.0 - TABLE_I_XR[0]  # the last column fits the bed, its run-out does not
+    step = ScanPlan("b", levels_mm=[20.0], angles_deg=[0.0], half_width_mm=half,
+                    step_mm=1.0, average=12)
+    checked_points(step, cal)
+    fly = ScanPlan("b", levels_mm=[20.0], angles_deg=[0.0], half_width_mm=half,
+                   step_mm=1.0, average=12, mode="fly")
+    assert ramp_mm(1000 / 12, ACCEL, 1.0) > 5
+    with pytest.raises(UnsafeMove, match="line 0's run-out end .*machine envelope"):
+        checked_points(fly, cal)
+
+
+class FakeSensor:
+    """A sensor board streaming waveforms on a clock of `rate` ticks/s, for _measure's checks."""
+
+    def __init__(self, motion, jump_s=0.0, edges_off=0):
+        from collections import deque
+        from types import SimpleNamespace
+
+        self.ns = SimpleNamespace
+        self.identity = SimpleNamespace(tick_hz=240_000_000)
+        self.clock = ClockSync(offset_ticks=5e9, ticks_per_s=240e6, residual_s=2e-5,
+                               rtt_s=1e-3)
+        self.motion, self.jump_s, self.edges_off = motion, jump_s, edges_off
+        self.motion_syncs = deque()
+        self.stream = None
+
+    def ticks(self, t):
+        return int(self.clock.offset_ticks + self.clock.ticks_per_s * t)
+
+    def stream_start(self):
+        import time
+
+        self.t0 = time.monotonic()
+
+    def stream_stop(self):
+        import time
+
+        t1 = time.monotonic()
+        start = self.t0 + 0.02  # the first step, after the first waveforms
+        self.motion_syncs.append(self.ns(
+            burst_id=len(self.motion_syncs), first_edge=self.ticks(start),
+            last_edge=self.ticks(start + self.motion.last_step_s),
+            edges=self.motion.n + self.edges_off))
+        times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
+        waves = [self.ns(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
+                         trigger_phase=7, samples=np.zeros(64, np.uint16))
+                 for i, t in enumerate(times)]
+        return waves, {"shots_dropped": 0, "adc_overruns": 0, "integrity_faults": 0}
+
+
+class FakeStage:
+    def __init__(self, motion):
+        self.motion = motion
+
+    def move(self, **kw):
+        pass
+
+    def wait(self):
+        import time
+
+        time.sleep(self.motion.last_step_s + 0.03)
+
+
+@pytest.mark.parametrize("jump_s, edges_off, why", [
+    (0.0, 0, None),
+    (-30.0, 0, "clock jumped"),            # the board reset: its clock restarted
+    (0.0, -1, "one X step burst of"),      # a step lost on the wire, or another move
+])
+def test_a_fly_line_is_kept_only_when_its_clock_and_its_steps_check_out(jump_s, edges_off,
+                                                                        why):
+    motion = LineMotion(80.0, 140.0, 83.33, ACCEL, SPU)
+    sensor, stage = FakeSensor(motion, jump_s, edges_off), FakeStage(motion)
+    plan = ScanPlan("b", step_mm=1.0, average=12, mode="fly")
+    line = FlyLine(0, [Point(0, 104.0, 0, 0, 0, 0, 0, 0), Point(1, 116.0, 0, 0, 0, 0, 12, 0)])
+    if why is None:
+        rows = _measure(stage, sensor, plan, line, motion, sensor.clock, 83.33)
+        assert 0 < len(rows["x"]) and np.all(np.diff(rows["x"]) > 0)
+        assert rows["x"].min() >= 103.5 and rows["x"].max() <= 116.5
+    else:
+        with pytest.raises(LineRejected, match=why):
+            _measure(stage, sensor, plan, line, motion, sensor.clock, 83.33)

@@ -62,6 +62,7 @@ def run(mode: str, speed: float, plan: ScanPlan, seed: int, out: Path) -> dict:
                                            shots=2, fit_c=False, lateral=5)
             finally:
                 sc.close()
+            st.home()  # away from the object: the scan's approach starts outside its keep-out
         setup.save(out / "ranging.json")
         s = sim.scene
         (out / "cal.toml").write_text(

@@ -152,6 +152,12 @@ class FakeSensor:
     def ticks(self, t):
         return int(self.clock.offset_ticks + self.clock.ticks_per_s * t)
 
+    def clock_exchanges(self, n):
+        import time
+
+        t = time.monotonic()
+        return [(t, float(self.ticks(t)), 1e-3)] * n
+
     def stream_start(self):
         import time
 

@@ -115,9 +115,6 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
     for line in todo:
         p0 = line.points[0]
         xs, xe = line_ends(line, plan, machine)
-        exchanges += sensor.clock_exchanges(4)  # a longer baseline: a better drift
-        exchanges = exchanges[-400:]
-        clock = fit_clock(exchanges)
         reasons: list[str] = []
         attempts = 0
         while attempts < RETRIES:
@@ -130,7 +127,7 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
             timing["move"] = t1 - t0
             try:
                 rows = _measure(stage, sensor, plan, line, LineMotion(xs, xe, v, a, spu),
-                                clock, v)
+                                clock, v, exchanges)
                 break
             except LineRejected as e:
                 reasons.append(str(e))
@@ -138,6 +135,8 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
                 rows = None
             finally:
                 timing["acquire"] = time.monotonic() - t1
+                exchanges = exchanges[-400:]  # a longer baseline each line: a better drift
+                clock = fit_clock(exchanges)
         if rows is None:
             raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
                                f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
@@ -164,10 +163,13 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
 
 
 def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
-             motion: LineMotion, clock: object, v: float) -> dict:
-    """One pass along the line; the kept waveforms and where they were, or LineRejected."""
+             motion: LineMotion, clock: object, v: float,
+             exchanges: list[tuple[float, float, float]] | None = None) -> dict:
+    """One pass along the line; the kept waveforms and where they were, or LineRejected.
+    A clock_sync exchange just before the arm and one just after the disarm bracket the
+    line in the device's clock (appended to `exchanges` for the drift fit)."""
     bursts_before = {m.burst_id for m in sensor.motion_syncs}
-    t_arm = time.monotonic()
+    before = sensor.clock_exchanges(1)
     sensor.stream_start()
     try:
         stage.move(x=motion.x1, feed_mm_min=round(v * 60), wait=False)
@@ -180,7 +182,9 @@ def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
             time.sleep(0.005)
     finally:
         waves, change = sensor.stream_stop()
-    t_stop = time.monotonic()
+    after = sensor.clock_exchanges(1)
+    if exchanges is not None:
+        exchanges += before + after
     if not waves:
         raise LineRejected("no waveform arrived while the line ran")
     ids = np.array([w.shot_id for w in waves])
@@ -189,10 +193,9 @@ def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
                            f"{len(ids)} received; device counters {change})")
     ts = np.array([w.timestamp for w in waves], dtype=np.int64)
     host_t = clock.to_host_s(ts)
-    slack = 0.05 + 10 * clock.residual_s
-    if np.any(np.diff(ts) <= 0) or host_t[0] < t_arm - slack or host_t[-1] > t_stop + slack:
+    if np.any(np.diff(ts) <= 0) or not before[0][1] <= ts[0] <= ts[-1] <= after[0][1]:
         raise LineRejected("the sensor clock jumped during the line (a board reset?): the "
-                           "waveform times do not follow the clock sync")
+                           "waveform times do not lie between the clock syncs around it")
     new = [m for m in list(sensor.motion_syncs)
            if m.burst_id not in bursts_before and m.first_edge > ts[0]]
     if len(new) != 1 or new[0].edges != motion.n:

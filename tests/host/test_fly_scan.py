@@ -36,6 +36,7 @@ def setup(emu, tmp_path, angles=(0.0, 90.0)):
                                          shots=2, fit_c=False, lateral=5)
         finally:
             sc.close()
+        st.home()  # away from the object: the scan's approach starts outside its keep-out
     ranging.save(tmp_path / "ranging.json")
     s = emu.sim.scene
     cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
@@ -100,7 +101,7 @@ def test_fly_places_every_waveform_where_the_stage_was_and_meets_the_paper(emula
     fits = validate_block(scan_points(scan), (50.0, 30.0))
     for m, (mean, std) in PAPER.items():
         f = fits[m]
-        assert f["n"] > 250
+        assert f["n"] > 140  # the faces in view on 4 lines (the rest of a line misses)
         assert f["e_mean_mm"] <= mean + 3 * f["e_mean_se_mm"], (m, f)
         assert f["e_std_mm"] <= 1.5 * std, (m, f)
 

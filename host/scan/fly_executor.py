@@ -112,36 +112,16 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
         here = stage.where()
         stage.move(x=here["X"], y=todo[0].points[0].y, z=here["Z"],
                    feed_mm_min=plan.feed_mm_min)
-    for line in todo:
-        p0 = line.points[0]
-        xs, xe = line_ends(line, plan, machine)
-        reasons: list[str] = []
-        attempts = 0
-        while attempts < RETRIES:
-            attempts += 1
-            timing = dict.fromkeys(PHASES, 0.0)
-            t0 = time.monotonic()
-            stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg, feed_mm_min=plan.feed_mm_min)
-            stage.wait()
-            t1 = time.monotonic()
-            timing["move"] = t1 - t0
-            try:
-                rows = _measure(stage, sensor, plan, line, LineMotion(xs, xe, v, a, spu),
-                                clock, v, exchanges)
-                break
-            except LineRejected as e:
-                reasons.append(str(e))
-                stats.lost += 1
-                rows = None
-            finally:
-                timing["acquire"] = time.monotonic() - t1
-                exchanges = exchanges[-400:]  # a longer baseline each line: a better drift
-                clock = fit_clock(exchanges)
-        if rows is None:
-            raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
-                               f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
+    state: dict = {"pending": None, "clock": clock, "exchanges": exchanges}
+
+    def store() -> None:
+        """Range and append the measured line waiting in state["pending"], if any."""
+        if state["pending"] is None:
+            return
+        rows, line, attempts, timing = state["pending"]
+        state["pending"] = None
         t2 = time.monotonic()
-        values = _range(rows, line, ranger, attempts, unix_minus_monotonic, clock,
+        values = _range(rows, line, ranger, attempts, unix_minus_monotonic, state["clock"],
                         JUMP_STEPS * plan.step_mm)
         timing["ranging"] = time.monotonic() - t2
         n = len(rows["samples"])
@@ -154,12 +134,60 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
             stats.phase_s[k] += timing[k]
         if progress is not None:
             progress(writer.n_done, len(points), timing)
+
+    try:
+        for line in todo:
+            state["pending"] = _fly_line(stage, sensor, plan, line, machine, v, a, spu,
+                                         state, stats, store)
+    except KeyboardInterrupt:  # stop the stage, then keep the line already measured
+        if state["pending"] is not None:
+            try:
+                stage.stop()
+            except LinkError:
+                pass
+            store()
+        raise
+    store()
+    clock, exchanges = state["clock"], state["exchanges"]
     stats.clock = {"drift_ppm": round((clock.ticks_per_s / tick_hz - 1) * 1e6, 3),
                    "drift_std_ppm": round(clock.rate_std / tick_hz * 1e6, 3),
                    "residual_us": round(clock.residual_s * 1e6, 3),
                    "rtt_ms": round(clock.rtt_s * 1e3, 3), "exchanges": len(exchanges)}
     stats.wall_s = time.monotonic() - t_start
     return stats
+
+
+def _fly_line(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
+              machine: MachineLimits, v: float, a: float, spu: float, state: dict,
+              stats: ScanStats, store: Callable[[], None]) -> tuple:
+    """Measure one line, up to RETRIES times; the previous line is stored while the stage
+    moves to this one's run-up. Returns (rows, line, attempts, timing) or raises."""
+    p0 = line.points[0]
+    xs, xe = line_ends(line, plan, machine)
+    reasons: list[str] = []
+    attempts = 0
+    while attempts < RETRIES:
+        attempts += 1
+        timing = dict.fromkeys(PHASES, 0.0)
+        stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg, feed_mm_min=plan.feed_mm_min)
+        store()  # the previous line, while the stage moves
+        t0 = time.monotonic()
+        stage.wait()
+        t1 = time.monotonic()
+        timing["move"] = t1 - t0
+        try:
+            rows = _measure(stage, sensor, plan, line, LineMotion(xs, xe, v, a, spu),
+                            state["clock"], v, state["exchanges"])
+            return rows, line, attempts, timing
+        except LineRejected as e:
+            reasons.append(str(e))
+            stats.lost += 1
+        finally:
+            timing["acquire"] = time.monotonic() - t1
+            state["exchanges"] = state["exchanges"][-400:]  # a longer baseline: a better drift
+            state["clock"] = fit_clock(state["exchanges"])
+    raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
+                       f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
 
 
 def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,

@@ -138,15 +138,19 @@ def main() -> int:
                     help="lines run -half..+half about the table axis (mm)")
     ap.add_argument("--average", type=int, default=12, help="laser shots per waveform")
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--feed", type=float, default=12000.0,
+                    help="travel feed between points and lines (mm/min; 12000 = the "
+                         "Chiron's X/Y maximum, 200 mm/s)")
     ap.add_argument("--modes", nargs="+", default=["step", "fly"], choices=["step", "fly"])
     args = ap.parse_args()
     plan = ScanPlan("aluminium_block", "aluminium", radius_mm=30.0, height_mm=40.0,
                     angles_deg=json.loads(args.angles),
                     levels_mm=json.loads(args.levels), half_width_mm=args.half_width,
-                    step_mm=args.step, average=args.average)
+                    step_mm=args.step, average=args.average, feed_mm_min=args.feed)
     print(f"plan: {len(plan.levels_mm)} levels x {len(plan.angles_deg)} angles, "
           f"{2 * plan.half_width_mm:g} mm lines, step {plan.step_mm:g} mm, average "
-          f"{plan.average}, {plan.samples} samples; emulator x{args.speed:g}, seed {args.seed}")
+          f"{plan.average}, {plan.samples} samples, travel feed {plan.feed_mm_min:g} mm/min; "
+          f"emulator x{args.speed:g}, seed {args.seed}")
     res = {}
     ok = True
     for mode in args.modes:

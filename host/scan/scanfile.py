@@ -179,18 +179,7 @@ class ScanWriter:
 
     def append(self, waveform: np.ndarray, **values: object) -> None:
         """Store one finished point (values: every name of POINT_FIELDS) and flush."""
-        d = self.data
-        i = self.n_done
-        missing = set(POINT_FIELDS) - set(values)
-        if missing:
-            raise ValueError(f"point lacks {sorted(missing)}")
-        order = ["waveforms"] + [k for k in POINT_FIELDS if k != "point_index"] + ["point_index"]
-        for name in order:
-            ds = d[name]
-            ds.resize(i + 1, axis=0)
-            ds[i] = waveform if name == "waveforms" else values[name]
-        self.f.flush()
-        self.n_done = i + 1
+        self.append_many(np.asarray(waveform)[None], **{k: [v] for k, v in values.items()})
 
     def append_many(self, waveforms: np.ndarray, **values: object) -> None:
         """Store several finished points at once (values: arrays over them for every name

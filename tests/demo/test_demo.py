@@ -39,6 +39,11 @@ def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
         want_us = h["material"] != "foam"
         assert (h["oa_points"] > 0) == want_oa and (h["us_points"] > 0) == want_us, (name, h)
         assert max(h["oa_points"], h["us_points"]) >= 0.5 * h["points"], (name, h)
+        fly = h["fly"]  # the same object fly-scanned: the same modalities work
+        assert (fly["oa_points"] > 0) == want_oa and (fly["us_points"] > 0) == want_us, (name,
+                                                                                       fly)
+    rates = summary["household_points_per_s"]
+    assert set(rates) == {"step", "fly"} and min(rates.values()) > 0, rates
     cls = st["5"]["values"]
     for name in ("minirocket", "boss"):  # seven materials told apart well above chance (1/7)
         acc = cls[name]["random"]

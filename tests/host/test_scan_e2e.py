@@ -63,7 +63,7 @@ def ranging_calibration(emu, tmp_path, steps=21):
 
 def test_block_scan_with_a_calibration_from_dmdsm_calibrate_meets_the_paper(emulator,
                                                                             tmp_path):
-    emu = emulator(speed=5.0, scene="aluminium_block", seed=3)
+    emu = emulator(speed=10.0, scene="aluminium_block", seed=3)
     sim = emu.sim
     ports = ["--sensor", emu.sensor, "--stage", emu.stage]
     ranging = ranging_calibration(emu, tmp_path)

@@ -17,6 +17,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +69,7 @@ def run(mode: str, speed: float, plan: ScanPlan, seed: int, out: Path) -> dict:
         (out / "cal.toml").write_text(
             f"[calibration]\nv = {(s.v / np.linalg.norm(s.v)).tolist()}\n"
             f"n = {(s.n / np.linalg.norm(s.n)).tolist()}\nX_R = {s.X_R.tolist()}\n")
-        plan.mode = mode
-        (out / "plan.toml").write_text(plan.to_toml())
+        (out / "plan.toml").write_text(replace(plan, mode=mode).to_toml())
         sim_t0 = sim.t
         r = subprocess.run([sys.executable, "-m", "dmdsm.host", "scan", "--sensor", S,
                             "--stage", T, "--no-home", "--calibration", str(out / "cal.toml"),
@@ -111,7 +111,7 @@ def fly_motion_s(plan: ScanPlan) -> float:
     from dmdsm.sim.physics.scene import TABLE_I_V, TABLE_I_XR
 
     machine = load_machine()
-    plan.mode = "fly"
+    plan = replace(plan, mode="fly")
     v, _ = fly_speed(plan, machine)
     total, here = 0.0, None
     for line in fly_lines(expand(plan, TABLE_I_V, TABLE_I_XR)):

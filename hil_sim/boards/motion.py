@@ -234,8 +234,8 @@ class Planner:
         for m in todo:
             m.profile()
 
-    def _start_time(self, m: Move) -> float | None:
-        """When the head block starts, or None if Marlin is still holding it back."""
+    def _start_time(self, m: Move) -> float:
+        """When the head block starts (Marlin holds a lone block after idle)."""
         if not m.after_idle or self.prev_end >= m.added:
             return max(m.added, self.prev_end)
         t = m.added + BLOCK_DELAY_FOR_1ST_MOVE
@@ -249,7 +249,7 @@ class Planner:
             m = self.queue[0]
             if m.t0 is None:
                 start = self._start_time(m)
-                if start is None or start > now:
+                if start > now:
                     return
                 m.t0 = start
                 self.history.append(m)
@@ -268,7 +268,7 @@ class Planner:
             if m.t0 is not None:
                 t = m.end
             elif i == 0:
-                t = max(now, self._start_time(m) or now) + m.duration
+                t = max(now, self._start_time(m)) + m.duration
             else:
                 t += m.duration
         return t

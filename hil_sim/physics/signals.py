@@ -121,9 +121,14 @@ def received(model: SensorModel, fc: float, bw: float, kind: str) -> tuple[float
     return through(fc, bw, 0.0, model.aa_cutoff_mhz / np.sqrt(np.log(2)))
 
 
+def _sigma_us(fc: float, bw: float) -> float:
+    """Envelope std (us) of a Gaussian pulse of fc MHz and -6 dB fractional bandwidth bw."""
+    return np.sqrt(2 * np.log(2)) / (np.pi * bw * fc)
+
+
 def _pulse(t_us: np.ndarray, fc: float, bw: float) -> np.ndarray:
     """Gaussian-modulated cosine, unit peak: the transducer's band-limited arrival."""
-    sigma = np.sqrt(2 * np.log(2)) / (np.pi * bw * fc)  # -6 dB fractional bandwidth
+    sigma = _sigma_us(fc, bw)
     return np.exp(-0.5 * (t_us / sigma) ** 2) * np.cos(2 * np.pi * fc * t_us)
 
 
@@ -135,7 +140,7 @@ def _add_pulse(x: np.ndarray, t_us: np.ndarray, t0_us: float, amp: float, fc: fl
     """x += amp * _pulse(t_us - t0_us, fc, bw), computed only where the envelope is not
     negligible (t_us uniformly spaced, increasing): the same sum at a fraction of the cost
     for a 1024-sample shot, which the emulator draws a thousand times a second."""
-    sigma = np.sqrt(2 * np.log(2)) / (np.pi * bw * fc)
+    sigma = _sigma_us(fc, bw)
     dt = (t_us[-1] - t_us[0]) / (len(t_us) - 1) if len(t_us) > 1 else 1.0
     lo = max(int(np.floor((t0_us - PULSE_SPAN * sigma - t_us[0]) / dt)), 0)
     hi = min(int(np.ceil((t0_us + PULSE_SPAN * sigma - t_us[0]) / dt)) + 1, len(t_us))

@@ -69,20 +69,17 @@ class Simulation:
         self.model = SensorModel(temperature_c=cfg.temperature_c)
         self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor: SensorBoard | RehostedSensor
+        sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
             from ..boards.rehost.board import RehostedSensor  # unicorn only when asked
             self.sensor = RehostedSensor(self.scene, self.pose, self.model, seed=cfg.seed,
                                          rep_rate_hz=cfg.rep_rate_hz,
-                                         elf=cfg.sensor_firmware,
-                                         sync_edges=self.x_step_edges if cfg.sync_wire
-                                         else None)
+                                         elf=cfg.sensor_firmware, sync_edges=sync)
         else:
             self.sensor = SensorBoard(self.scene, self.pose, self.model, seed=cfg.seed,
                                       rep_rate_hz=cfg.rep_rate_hz,
                                       link_bytes_per_s=cfg.sensor_link_bytes_per_s,
-                                      frozen_noise=cfg.frozen_noise,
-                                      sync_edges=self.x_step_edges if cfg.sync_wire
-                                      else None)
+                                      frozen_noise=cfg.frozen_noise, sync_edges=sync)
         self.channels = {
             (name, way): FaultyChannel(link[name], seed=cfg.seed * 4 + i)
             for i, (name, way) in enumerate((n, w) for n in ("sensor", "stage")

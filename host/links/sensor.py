@@ -112,6 +112,7 @@ class SensorClient:
         # continuous acquisition (stream_start/stream_stop): waveform messages in arrival
         # order; motion_sync reports (the stage's X STEP bursts) as they come, the last 256
         self.stream: list[Message] | None = None
+        self._stream_before: dict = {}  # device counters when the stream was armed
         self.motion_syncs: deque[Message] = deque(maxlen=256)
         self._open()
         self.identity = self.handshake()

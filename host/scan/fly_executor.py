@@ -121,7 +121,7 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
         rows, line, attempts, timing = state["pending"]
         state["pending"] = None
         t2 = time.monotonic()
-        values = _range(rows, line, ranger, attempts, unix_minus_monotonic, state["clock"],
+        values = _range(rows, line, ranger, attempts, unix_minus_monotonic,
                         JUMP_STEPS * plan.step_mm)
         timing["ranging"] = time.monotonic() - t2
         n = len(rows["samples"])
@@ -239,7 +239,7 @@ def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
         raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
                            f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
     try:
-        x, cruise, scale = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
+        x, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
                                        tick_hz, ts, n_avg, period)
     except ValueError as e:
         raise LineRejected(str(e)) from None
@@ -252,7 +252,7 @@ def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
     return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
             "x": x[idx], "timestamp": ts[idx], "host_t": host_t[idx],
             "trigger_phase": np.array([waves[i].trigger_phase for i in idx]),
-            "n_average": np.array([waves[i].n_average for i in idx]), "scale": scale}
+            "n_average": np.array([waves[i].n_average for i in idx])}
 
 
 def straddles(d_mm: np.ndarray, x_mm: np.ndarray, jump_mm: float) -> np.ndarray:
@@ -276,7 +276,7 @@ def straddles(d_mm: np.ndarray, x_mm: np.ndarray, jump_mm: float) -> np.ndarray:
 
 
 def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
-           unix_minus_monotonic: float, clock: object, jump_mm: float) -> dict:
+           unix_minus_monotonic: float, jump_mm: float) -> dict:
     """Distances and the file's per-row values for a kept line."""
     p0 = line.points[0]
     n = len(rows["x"])

@@ -57,7 +57,7 @@ class Move:
         if n == 0 or self.length <= 0:
             self.r0 = self.r1 = self.r2 = 1.0
             self.A = 1.0
-            self.d_acc = self.d_dec = self.d_cruise = 0.0
+            self.d_acc = self.d_dec = self.d_cruise = self._duration = 0.0
             return
         k = n / self.length  # steps per mm along the move
         rn = max(self.v * k, MINIMAL_STEP_RATE)
@@ -75,6 +75,7 @@ class Move:
         self.r0, self.r1, self.r2, self.A = r0, rn, r2, A
         self.d_acc, self.d_dec = d_acc, d_dec
         self.d_cruise = max(n - d_acc - d_dec, 0.0)
+        self._duration = self.t_acc + self.t_cruise + self.t_dec
 
     @property
     def t_acc(self) -> float:
@@ -94,7 +95,7 @@ class Move:
     @property
     def duration(self) -> float:
         """Time from the first step until the block hands over to the next (s)."""
-        return 0.0 if self.n == 0 else self.t_acc + self.t_cruise + self.t_dec
+        return 0.0 if self.n == 0 else self._duration
 
     def s_at(self, t: np.ndarray | float) -> np.ndarray:
         """Dominant-axis steps taken t seconds after the first (continuous, 0..n)."""

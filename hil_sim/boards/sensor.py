@@ -20,6 +20,7 @@ from .firmware_core import FirmwareCore
 
 TICK_HZ = 240_000_000
 ADC_RATE_HZ = TICK_HZ / 72  # the NUCLEO's paced rate, 3.333 MS/s (docs/firmware.md)
+BATCH = 16  # laser shots whose ray casts are computed together
 
 Pose = Callable[[float], tuple[np.ndarray, float]]  # time (s) -> (S in mm, theta in deg)
 Edges = Callable[[float, float], np.ndarray]  # (t_from, t_to] (s) -> times of sync edges (s)
@@ -63,19 +64,34 @@ class SensorBoard:
 
     def hit(self, t: float) -> Hit:
         """What the beam sees at time t (cached while the pose does not change)."""
-        S, theta = self.pose(t)
-        key = (tuple(np.round(S, 6)), round(theta, 6))
-        if self._hit_cache is None or self._hit_cache[0] != key:
-            self._hit_cache = (key, self.scene.cast(np.asarray(S), theta))
-        return self._hit_cache[1]
+        return self._hits([t])[0]
 
-    def _fire(self, t: float, cfg: dict) -> None:
+    def _hits(self, times: list[float]) -> list[Hit]:
+        """What the beam sees at each time (s): the poses not seen last are cast together,
+        one ray-cast pass per table angle (a fly line's shots all differ in X)."""
+        keys, poses = [], []
+        for t in times:
+            S, theta = self.pose(t)
+            keys.append((tuple(np.round(S, 6)), round(theta, 6)))
+            poses.append((np.asarray(S, float), float(theta)))
+        known = dict([self._hit_cache]) if self._hit_cache is not None else {}
+        todo: dict[float, dict[tuple, np.ndarray]] = {}
+        for key, (S, theta) in zip(keys, poses):
+            if key not in known:
+                todo.setdefault(theta, {})[key] = S
+        for theta, group in todo.items():
+            known.update(zip(group, self.scene.cast_many(np.array(list(group.values())),
+                                                         theta)))
+        self._hit_cache = (keys[-1], known[keys[-1]])
+        return [known[k] for k in keys]
+
+    def _fire(self, t: float, cfg: dict, hit: Hit) -> None:
         fs = ADC_RATE_HZ / cfg["sample_rate_div"]
         period_ticks = int(round(TICK_HZ / fs))
         phase = int(self.rng.integers(1, period_ticks + 1))  # edge to first sample (ticks)
         k = np.arange(cfg["n_samples"]) - cfg["pretrigger"]
         t_us = (k / fs + phase / TICK_HZ) * 1e6
-        x = synthesize(self.hit(t), self.model, t_us, self.rng, self.seed)
+        x = synthesize(hit, self.model, t_us, self.rng, self.seed)
         self.core.set_ticks(self._ticks(t))
         self.core.capture(to_adc(x, self.model), self._ticks(t), phase)
         self.shots += 1
@@ -107,17 +123,23 @@ class SensorBoard:
             self.next_shot = max(self.next_shot, now - now % period + period)
         fired = 0
         while self.next_shot <= now and fired < 100_000:
-            self._sync_to(self.next_shot)
-            cfg = self.core.armed()
-            if cfg is not None:
-                if self.frozen_noise and not self._in_arm:
-                    self._reseed(self.next_shot, cfg)
-                self._in_arm = True
-                self._fire(self.next_shot, cfg)
-            else:
-                self._in_arm = False
-            self.next_shot += period
-            fired += 1
+            times = [self.next_shot]  # the shots due, BATCH at most: their casts in one pass
+            while len(times) < BATCH and times[-1] + period <= now:
+                times.append(times[-1] + period)
+            # arming comes only from the host (between calls): an idle core stays idle here
+            hits = self._hits(times) if self.core.armed() is not None else None
+            for i, t in enumerate(times):
+                self._sync_to(t)
+                cfg = self.core.armed()  # a counted arm may end within the batch
+                if cfg is not None and hits is not None:
+                    if self.frozen_noise and not self._in_arm:
+                        self._reseed(t, cfg)
+                    self._in_arm = True
+                    self._fire(t, cfg, hits[i])
+                else:
+                    self._in_arm = False
+                self.next_shot += period
+                fired += 1
         self._sync_to(now)
         self.now = max(self.now, now)
         self.core.set_ticks(self._ticks(self.now))

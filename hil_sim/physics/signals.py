@@ -9,12 +9,11 @@ every default here is a documented assumption (docs/sim.md).
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import Hit
+from .scene import Hit, keyed_laplace, keyed_normal
 
 
 def speed_of_sound_mm_us(temperature_c: float) -> float:
@@ -136,16 +135,18 @@ PULSE_SPAN = 9.0  # sigmas: beyond this the envelope is below exp(-40), 4e-18 of
 
 
 def _add_pulse(x: np.ndarray, t_us: np.ndarray, t0_us: float, amp: float, fc: float,
-               bw: float) -> None:
+               bw: float) -> slice:
     """x += amp * _pulse(t_us - t0_us, fc, bw), computed only where the envelope is not
     negligible (t_us uniformly spaced, increasing): the same sum at a fraction of the cost
-    for a 1024-sample shot, which the emulator draws a thousand times a second."""
+    for a 1024-sample shot, which the emulator draws a thousand times a second. Returns the
+    samples it changed."""
     sigma = _sigma_us(fc, bw)
     dt = (t_us[-1] - t_us[0]) / (len(t_us) - 1) if len(t_us) > 1 else 1.0
     lo = max(int(np.floor((t0_us - PULSE_SPAN * sigma - t_us[0]) / dt)), 0)
     hi = min(int(np.ceil((t0_us + PULSE_SPAN * sigma - t_us[0]) / dt)) + 1, len(t_us))
     if hi > lo:
         x[lo:hi] += amp * _pulse(t_us[lo:hi] - t0_us, fc, bw)
+    return slice(lo, max(hi, lo))
 
 
 def roughness(hit: Hit, scale_mm: float, kind: str, seed: int) -> float:
@@ -153,10 +154,9 @@ def roughness(hit: Hit, scale_mm: float, kind: str, seed: int) -> float:
     averaging shots does not remove it; Laplace for OA, Gaussian for US (mm)."""
     if hit.local is None or scale_mm == 0:
         return 0.0
-    cell = np.round(np.asarray(hit.local) / 0.2).astype(int).tobytes()
-    h = hashlib.blake2b(cell + f"{hit.obj}:{kind}:{seed}".encode(), digest_size=8).digest()
-    rng = np.random.default_rng(int.from_bytes(h, "little"))
-    return float(rng.laplace(0, scale_mm) if kind == "oa" else rng.normal(0, scale_mm))
+    key = np.round(np.asarray(hit.local) / 0.2).astype(int).tobytes() + \
+        f"{hit.obj}:{kind}:{seed}".encode()
+    return keyed_laplace(key, scale_mm) if kind == "oa" else keyed_normal(key, scale_mm)
 
 
 def arrival_times_us(d_mm: float, model: SensorModel) -> tuple[float, float]:
@@ -169,9 +169,9 @@ def synthesize(hit: Hit, model: SensorModel, t_us: np.ndarray, rng: np.random.Ge
                seed: int = 0) -> np.ndarray:
     """Analog waveform (counts about 0) at sample times t_us after the laser edge."""
     x = np.zeros(t_us.shape)
-    _add_pulse(x, t_us, model.t0_us_us, model.bang_amp,
-               *received(model, model.us_fc_mhz, model.us_bw, "us"))
-    x *= np.exp(-np.clip(t_us - model.t0_us_us, 0, None) / model.bang_decay_us)
+    w = _add_pulse(x, t_us, model.t0_us_us, model.bang_amp,
+                   *received(model, model.us_fc_mhz, model.us_bw, "us"))
+    x[w] *= np.exp(-np.clip(t_us[w] - model.t0_us_us, 0, None) / model.bang_decay_us)
     for ret in (hit, *hit.later):
         _add_return(x, ret, model, t_us, rng, seed)
     x += rng.normal(0, model.noise_counts, t_us.shape)

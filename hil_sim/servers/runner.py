@@ -24,7 +24,7 @@ from .faults import FaultyChannel, LinkFaults, parse_faults
 if TYPE_CHECKING:
     from ..boards.rehost.board import RehostedSensor
 
-STEP_S = 0.001  # simulated-time resolution of the main loop
+STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
 
 
 @dataclass

@@ -23,8 +23,11 @@ def start(*args):
     p = subprocess.Popen([sys.executable, "-m", "dmdsm.host", "sim", "--json", *args],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=interruptible)
-    ports = json.loads(p.stdout.readline())
-    return p, ports
+    line = p.stdout.readline()
+    if not line:  # it exited instead of serving: show why, and leave no pipe open
+        _, err = p.communicate(timeout=10)
+        raise AssertionError(f"dmdsm sim exited with {p.returncode}: {err.strip()[-500:]}")
+    return p, json.loads(line)
 
 
 def test_sim_serves_both_boards_on_ptys_and_stops_on_ctrl_c(tmp_path):

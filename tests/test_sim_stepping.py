@@ -21,7 +21,7 @@ def fly_line_waveforms(chunk_s: float) -> list[tuple[int, int, bytes]]:
             sim.advance(chunk_s)
             sim.read("stage")
             out.extend(m for m in dec.feed(sim.read("sensor"))
-                       if isinstance(m, Message) and m.name == "waveform")
+                       if isinstance(m, Message) and m.name in ("waveform", "motion_sync"))
 
     sim.write("stage", b"G28\n")
     run(12.0)
@@ -33,20 +33,26 @@ def fly_line_waveforms(chunk_s: float) -> list[tuple[int, int, bytes]]:
     run(0.1)
     sim.write("sensor", encode_frame(Message("arm", seq=2, n_shots=0)))
     sim.write("stage", b"G1 X250 F5000\n")
-    run(1.0)
+    run(1.5)
     return [(int(m.fields["shot_id"]), int(m.fields["timestamp"]),
-             np.asarray(m.fields["samples"]).tobytes()) for m in out]
+             np.asarray(m.fields["samples"]).tobytes()) if m.name == "waveform" else
+            (m.fields["burst_id"], m.fields["first_edge"], m.fields["last_edge"],
+             m.fields["edges"]) for m in out]
 
 
-def test_a_fly_line_gives_the_same_waveforms_however_finely_the_emulator_is_stepped():
+def test_a_fly_line_gives_the_same_waveforms_and_step_burst_however_the_emulator_is_stepped():
     fine = fly_line_waveforms(0.001)   # one shot per step
     coarse = fly_line_waveforms(0.02)  # batches of shots cast together
-    assert len(fine) > 60  # 83 waveforms/s for most of a second
-    n = min(len(fine), len(coarse))
-    assert n >= len(fine) - 2  # the link paces the tail differently; the content is the same
-    assert fine[:n] == coarse[:n]
+    assert fine == coarse
+    waves = [m for m in fine if len(m) == 3]
+    assert len(waves) > 60  # 83 waveforms/s while the line runs
     # the stage moved: the waveforms differ from one another (not one pose repeated)
-    assert len({w[2] for w in fine}) == len(fine)
+    assert len({w[2] for w in waves}) == len(waves)
+    # the line's X steps (40 mm, 80 steps/mm) are one motion_sync, after the first waveform
+    # (the burst before it is homing and the approach)
+    bursts = [m for m in fine if len(m) == 4]
+    assert len(bursts) == 2 and bursts[-1][3] == 3200
+    assert bursts[-1][1] > waves[0][1]
 
 
 def test_keyed_noise_is_normal_and_laplace_with_the_stated_scale_and_repeatable():

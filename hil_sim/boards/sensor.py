@@ -47,6 +47,8 @@ class SensorBoard:
         self.now = 0.0
         self.next_shot = 0.0
         self.link_credit = 0.0
+        self.link_t = 0.0            # the UART has sent what it could up to this time (s)
+        self._out = bytearray()      # sent since the last step()
         self.link_blocked = False  # the host side cannot take more (pty full): back-pressure
         self.shots = 0
         self._hit_cache: tuple[tuple, Hit] | None = None
@@ -130,6 +132,7 @@ class SensorBoard:
             hits = self._hits(times) if self.core.armed() is not None else None
             for i, t in enumerate(times):
                 self._sync_to(t)
+                self._drain(t)
                 cfg = self.core.armed()  # a counted arm may end within the batch
                 if cfg is not None and hits is not None:
                     if self.frozen_noise and not self._in_arm:
@@ -144,13 +147,27 @@ class SensorBoard:
         self.now = max(self.now, now)
         self.core.set_ticks(self._ticks(self.now))
 
-    def step(self, now: float) -> bytes:
-        """Advance to `now` and return what the link carries to the host meanwhile."""
-        dt = max(0.0, now - self.now)
-        self.step_to(now)
+    def _drain(self, t: float) -> None:
+        """The UART sends what it can up to time t (s). Called at every shot, not once per
+        emulator step, so the device's queue fills and empties as on hardware however
+        coarsely the emulator is stepped."""
+        dt = t - self.link_t
+        if dt <= 0:
+            return
+        self.link_t = t
         burst = 0.005 * self.link_bytes_per_s + 64  # a UART does not save up idle time
         self.link_credit = min(self.link_credit + dt * self.link_bytes_per_s, burst)
         n = 0 if self.link_blocked else int(self.link_credit)
-        data = self.core.tx(n) if n > 0 else b""
-        self.link_credit -= len(data)
+        if n > 0:
+            self.core.set_ticks(self._ticks(t))  # the core polls at t: no edge is after it
+            data = self.core.tx(n)
+            self.link_credit -= len(data)
+            self._out += data
+
+    def step(self, now: float) -> bytes:
+        """Advance to `now` and return what the link carries to the host meanwhile."""
+        self.step_to(now)
+        self._drain(now)
+        data = bytes(self._out)
+        self._out.clear()
         return data

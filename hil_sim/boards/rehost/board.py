@@ -138,6 +138,7 @@ class RehostedSensor:
 
     # ---------------------------------------------------------------- physics
     hit = SensorBoard.hit  # what the beam sees at time t, cached while the pose holds
+    _hits = SensorBoard._hits
 
     def analog(self, ks: np.ndarray, times: np.ndarray, grid: tuple[float, float]) -> np.ndarray:
         """ADC codes for conversions ks at times (s) on the grid (TIM8 start, period)."""

@@ -10,14 +10,19 @@ from .errors import Terminated, terminate
 
 
 def run(argv: list[str] | None = None) -> int:
-    """Import the command line and run it; a signal during the imports is one line too."""
+    """Import the command line and run it. Ctrl-C or SIGTERM during the imports is held
+    until they finish, then taken as usual: an import cut in half leaves modules broken
+    (a library's bare `except:` may even swallow the interrupt), and the interpreter may
+    then exit by the signal instead of with 130."""
+    pending: list[int] = []
+    held = _hold_signals(pending)
     try:
-        signal.signal(signal.SIGTERM, terminate)
-    except ValueError:  # not the main thread
-        pass
-    try:
-        from .cli import main
-
+        try:
+            from .cli import main
+        finally:
+            _release_signals(held)
+        if pending:
+            raise Terminated() if pending[0] == signal.SIGTERM else KeyboardInterrupt()
         return main(argv)
     except KeyboardInterrupt as e:  # before or after a command's own handling
         terminated = isinstance(e, Terminated)
@@ -28,3 +33,25 @@ def run(argv: list[str] | None = None) -> int:
 def console() -> None:
     """`dmdsm` as installed by pip."""
     sys.exit(run())
+
+
+def _hold_signals(pending: list[int]) -> dict:
+    """Record SIGINT (if Python's Ctrl-C handler is in place) and SIGTERM in `pending`
+    instead of raising; returns what to restore (nothing outside the main thread)."""
+    def record(signum: int, frame: object) -> None:
+        pending.append(signum)
+
+    held = {}
+    try:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            held[signal.SIGINT] = signal.signal(signal.SIGINT, record)
+        held[signal.SIGTERM] = signal.signal(signal.SIGTERM, record)
+    except ValueError:  # not the main thread (a test calling run): leave the handlers
+        pass
+    return held
+
+
+def _release_signals(held: dict) -> None:
+    """Ctrl-C raises KeyboardInterrupt again and SIGTERM raises Terminated."""
+    for signum in held:
+        signal.signal(signum, terminate if signum == signal.SIGTERM else held[signum])

@@ -148,20 +148,27 @@ class SensorClient:
             pass
 
     def reconnect(self, wait_s: float = 10.0) -> None:
-        """Reopen the port (after a USB re-enumeration) and repeat the handshake."""
+        """Reopen the port (after a USB re-enumeration) and repeat the handshake; a port
+        that drops again during the handshake is reopened too, until wait_s (s)."""
         self.close()
         self._config = self._counters = None
         end = time.monotonic() + wait_s
         while True:
             try:
                 self._open()
-                break
             except LinkError:
                 if time.monotonic() > end:
                     raise SensorError(f"the sensor board did not come back on "
                                       f"{self.port_name} within {wait_s:.0f} s") from None
                 time.sleep(0.2)
-        self.identity = self.handshake()
+                continue
+            try:
+                self.identity = self.handshake()
+                return
+            except SensorError:
+                if not self.link_error or time.monotonic() > end:
+                    raise  # an answer that is wrong, not a link that went away
+                self.close()
 
     def _write(self, data: bytes) -> None:
         try:

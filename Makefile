@@ -135,7 +135,7 @@ test: deps build gen-check lint test-c fuzz
 	@mkdir -p build; rc=0; drc=0; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider tests/demo \
 	  > build/test-demo.log 2>&1 & demo=$$!; \
-	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 --dist loadfile \
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 4 --dist loadfile \
 	  --durations=15 --ignore=tests/demo || rc=$$?; \
 	wait $$demo || drc=$$?; \
 	echo "---- tests/demo (the full demo, run beside the others)"; cat build/test-demo.log; \

@@ -125,7 +125,11 @@ def test_a_stopped_move_stops_at_once_and_stage_stop_answers(emulator, sig, code
                               "3600", "--stage", emu.stage], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True,
                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    time.sleep(3.0)  # A turns at 90 deg/s: the move would take 40 s
+    # A turns at 90 deg/s: the move would take 40 s; signal it once it turns (a loaded
+    # machine may still be importing after 3 s, and the move would then never start)
+    deadline = time.monotonic() + 60
+    while emu.sim.stage.planner.position()[3] < 90 and time.monotonic() < deadline:
+        time.sleep(0.05)
     t0 = time.monotonic()
     mover.send_signal(sig)
     _, err = mover.communicate(timeout=60)

@@ -147,6 +147,7 @@ bench: deps firmware
 	$(PY) bench/links.py
 	$(PY) bench/ranging.py
 	$(PY) bench/calibration.py
+	$(PY) bench/emulator.py
 	$(PY) bench/scan.py
 	$(PY) bench/classify.py
 

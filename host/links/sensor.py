@@ -179,7 +179,9 @@ class SensorClient:
     def _read_loop(self) -> None:
         while not self._stop:
             try:
-                data = self.ser.read(65536) if self.ser.in_waiting else self.ser.read(1)
+                # what has arrived, or wait for one byte: read(65536) would wait the port
+                # timeout (20 ms) for bytes that are not coming, on every reply
+                data = self.ser.read(self.ser.in_waiting or 1)
             except (OSError, serial.SerialException, TypeError, ValueError) as e:
                 with self.cond:
                     self.link_error = str(e) or "port closed"

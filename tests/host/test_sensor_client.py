@@ -63,4 +63,8 @@ def test_clock_sync_recovers_the_tick_rate(emulator):
     cs = sc.sync_clock(16)
     assert cs.ticks_per_s == pytest.approx(240e6, rel=0.02)
     assert cs.residual_s < 0.01 and cs.rtt_s < 0.1
+    # a reply is taken as it arrives: the reader once waited its 20 ms port timeout for
+    # more bytes on every reply, so every request took 21 ms even on a pty
+    rtts = [r for _, _, r in sc.clock_exchanges(16)]
+    assert np.median(rtts) < 0.015, rtts
     sc.close()

@@ -288,8 +288,9 @@ def stage_household(d: Demo) -> Section:
         f"{rates['fly']:.1f} points/s, 2 mm apart, into {d.out / 'db_fly'}: "
         f"each line one constant-speed move, every waveform placed by the X STEP pulses "
         f"time-stamped on the sensor board). The emulator runs moves 8x faster than the "
-        f"machine but a fly line's shots only at about real time, so these rates understate "
-        f"fly; `python bench/scan.py` compares the two at x1 (docs/scanning.md). The "
+        f"machine but a fly line only as fast as it can compute the shots (about 1.5x real "
+        f"time, `python bench/emulator.py`), so these rates understate fly; `python "
+        f"bench/scan.py` compares the two at x1 (docs/scanning.md). The "
         f"classification below trains on the step-and-shoot database: a fly waveform averages "
         f"its 12 shots over 2 mm of travel, which on a curved surface smears the pulse the "
         f"classifier reads (docs/scanning.md).")

@@ -40,6 +40,9 @@ class AcquisitionInterrupted(KeyboardInterrupt):
         self.shots = shots
 
 
+CLOCK_SPACING_S = 0.025  # between clock_sync exchanges of one fit: 16 span 0.4 s
+
+
 class SensorError(LinkError):
     """The sensor board refused or failed; str() says what to do."""
 
@@ -404,19 +407,25 @@ class SensorClient:
             with self.cond:
                 self.cond.wait(0.05)
 
-    def clock_exchanges(self, n: int = 16) -> list[tuple[float, float, float]]:
-        """n clock_sync exchanges: (host monotonic mid-time s, device ticks, round trip s)."""
+    def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0
+                        ) -> list[tuple[float, float, float]]:
+        """n clock_sync exchanges, started at least spacing_s apart: (host monotonic mid-time
+        s, device ticks, round trip s). A rate needs a baseline: 16 back-to-back exchanges
+        span 10 ms, where 1 ms of USB jitter is a 10 % error."""
         out = []
-        for _ in range(n):
+        for i in range(n):
+            if i and spacing_s > 0:
+                time.sleep(max(0.0, out[-1][0] + spacing_s - time.monotonic()))
             t0 = time.monotonic_ns()
             r = self.request("clock_sync", host_time_ns=t0)
             t1 = time.monotonic_ns()
             out.append(((t0 + t1) / 2e9, float(r.device_ticks), (t1 - t0) / 1e9))
         return out
 
-    def sync_clock(self, exchanges: int = 16) -> ClockSync:
-        """Fit device ticks against host time over clock_sync exchanges (Klipper's way)."""
-        return fit_clock(self.clock_exchanges(exchanges))
+    def sync_clock(self, exchanges: int = 16, spacing_s: float = CLOCK_SPACING_S) -> ClockSync:
+        """Fit device ticks against host time over clock_sync exchanges (Klipper's way),
+        spread over exchanges x spacing_s seconds (0.4 s by default)."""
+        return fit_clock(self.clock_exchanges(exchanges, spacing_s))
 
 
 def fit_clock(samples: list[tuple[float, float, float]]) -> ClockSync:

@@ -21,7 +21,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits
 
-from ..links.sensor import fit_clock
+from ..links.sensor import CLOCK_SPACING_S, fit_clock
 from ..links.transport import LinkError
 from .executor import PointRanger, ScanStats, _surface
 from .fly import LineMotion, line_speed_mm_s, place_shots, ramp_mm
@@ -102,7 +102,7 @@ def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Poi
     lines = fly_lines(points)
     done = writer.data["point_index"][:writer.n_done]
     todo = lines[int(done.max()) + 1:] if len(done) else lines
-    exchanges = sensor.clock_exchanges(16)
+    exchanges = sensor.clock_exchanges(16, CLOCK_SPACING_S)
     clock = fit_clock(exchanges)
     tick_hz = float(sensor.identity.tick_hz)
     unix_minus_monotonic = time.time() - time.monotonic()

@@ -271,11 +271,9 @@ def keyed_laplace(key: bytes, scale: float) -> float:
 
 
 def hash_noise(key: str, sigma: float, size: int, seed: int) -> np.ndarray:
-    """A fixed pseudo-random offset for a key: repeatable per position, not per read."""
+    """A fixed pseudo-random offset (`size` at most 8) for a key: repeatable per position, not
+    per read."""
     if sigma == 0:
         return np.zeros(size)
-    if size > 8:
-        h = hashlib.blake2b(f"{seed}:{key}".encode(), digest_size=8).digest()
-        return np.random.default_rng(int.from_bytes(h, "little")).normal(0, sigma, size)
     u = keyed_uniforms(f"{seed}:{key}".encode(), size)
     return sigma * np.array([_STANDARD_NORMAL.inv_cdf(x) for x in u])

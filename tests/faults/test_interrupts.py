@@ -34,7 +34,9 @@ def test_a_stopped_acquisition_keeps_its_shots_and_disarms(emulator, tmp_path, s
                                    "--average", "16", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    time.sleep(4.0)  # shots are arriving
+    deadline = time.monotonic() + 60  # shots are arriving (a loaded machine may still be
+    while emu.sim.sensor.shots < 64 and time.monotonic() < deadline:  # importing at 4 s)
+        time.sleep(0.05)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == code, err

@@ -2,15 +2,21 @@
  * pseudo-terminal, step/dir pins counted per axis, endstop pins driven from the counted
  * position, simulated time and counts reported on stdout.
  *
- * usage: stage_harness FIRMWARE.elf [--mcu atmega2560] [--freq 16000000] [--speed 1.0]
+ * usage: stage_harness FIRMWARE.elf [--mcu atmega2560] [--freq 16000000] [--speed 1.0] [--lockstep]
  *            [--link PATH] [--axis NAME:STEP:DIR:ENDSTOP:TRIGGER ...]
  *   STEP, DIR, ENDSTOP are pins as port letter + bit (F0, E5); ENDSTOP may be '-'; DIR
  *   written !F1 counts DIR low as positive (Marlin's INVERT_x_DIR).
- *   TRIGGER: the count at or below which the min endstop reads triggered (high, as the
- *   Chiron's mechanical switches with ENDSTOP_INVERTING false).
+ *   TRIGGER: the count at or below which the min endstop reads triggered: high, or low if
+ *   ENDSTOP is written !E5 (Marlin's x_MIN_ENDSTOP_HIT_STATE LOW).
  * stdout: "pty PATH" once, then "t SECONDS C1 C2 ..." whenever a count changed (at most
  * every 1 ms of simulated time) and at least every 50 ms, and "exit STATE" at the end.
  * stdin: "quit" ends the run.
+ *
+ * --lockstep (what `dmdsm sim --stage-firmware` uses): no pty and no pacing; the caller owns
+ * time. stdin lines: "w HEX" queues bytes for UART0; "r CYCLE" runs until that CPU cycle,
+ * then prints "u HEX" (UART0 output, if any), "e AXIS S1 S2 ..." per axis that stepped (each
+ * step's cycle + 1, negative for a step down) and "d CYCLE STATE"; "reset" is the DTR reset
+ * (counts kept: the carriage does not move) and answers "d CYCLE STATE"; "quit" ends it.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -25,6 +31,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <simavr/avr_extint.h>
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
@@ -38,7 +45,9 @@ typedef struct axis_t {
 	int step_bit, dir_bit, end_bit;
 	long trigger;
 	long count;
-	int dir_level, step_level, end_level, dir_inverted;
+	long long *edges;  /* lock-step: this run's steps, signed cycle + 1 */
+	size_t n_edges, cap_edges;
+	int dir_level, step_level, end_level, dir_inverted, end_inverted;
 	avr_irq_t *end_irq;
 } axis_t;
 
@@ -49,6 +58,25 @@ static int pty_master = -1;
 static int uart_xon = 1;
 static int counts_changed;
 static volatile sig_atomic_t stop_requested;
+static int lockstep;
+static uint8_t *uart_out;  /* lock-step: UART0 output since the last run */
+static size_t n_out, cap_out;
+
+static void *grow(void *buf, size_t *cap, size_t need, size_t size)
+{
+	if (need <= *cap)
+		return buf;
+	size_t c = *cap ? *cap : 256;
+	while (c < need)
+		c *= 2;
+	void *b = realloc(buf, c * size);
+	if (!b) {
+		fprintf(stderr, "stage_harness: out of memory\n");
+		exit(2);
+	}
+	*cap = c;
+	return b;
+}
 
 static int parse_pin(const char *s, char *port, int *bit)
 {
@@ -74,22 +102,34 @@ static int parse_axis(char *spec, axis_t *a)
 		return -1;
 	snprintf(a->name, sizeof(a->name), "%s", f[0]);
 	a->dir_inverted = f[2][0] == '!';
+	a->end_inverted = f[3][0] == '!';
 	if (parse_pin(f[1], &a->step_port, &a->step_bit) || a->step_bit < 0 ||
 	    parse_pin(f[2] + a->dir_inverted, &a->dir_port, &a->dir_bit) || a->dir_bit < 0 ||
-	    parse_pin(f[3], &a->end_port, &a->end_bit))
+	    parse_pin(f[3] + a->end_inverted, &a->end_port, &a->end_bit))
 		return -1;
 	a->trigger = strtol(f[4], NULL, 10);
 	return 0;
 }
+
+/* the level each port's endstop pins are held at, which a pull-up must not override */
+static uint8_t ext_mask['L' - 'A' + 1], ext_value['L' - 'A' + 1];
 
 /* the endstop pin follows the counted position */
 static void drive_endstop(axis_t *a)
 {
 	if (!a->end_irq)
 		return;
-	int level = a->count <= a->trigger;
+	int level = (a->count <= a->trigger) != a->end_inverted;
 	if (level != a->end_level) {
+		int k = a->end_port - 'A';
 		a->end_level = level;
+		ext_mask[k] |= 1u << a->end_bit;
+		ext_value[k] = (ext_value[k] & ~(1u << a->end_bit)) | (level << a->end_bit);
+		/* simavr sets an input pin high when the firmware enables its pull-up
+		 * (ENDSTOPPULLUPS) unless the pin is marked as driven from outside */
+		avr_ioport_external_t ext = {.name = a->end_port, .mask = ext_mask[k],
+					     .value = ext_value[k]};
+		avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(a->end_port), &ext);
 		avr_raise_irq(a->end_irq, level);
 	}
 }
@@ -100,7 +140,13 @@ static void on_step(struct avr_irq_t *irq, uint32_t value, void *param)
 	axis_t *a = param;
 	int level = value & 1;
 	if (level && !a->step_level) {  /* rising edge: one step (DIR high = positive) */
-		a->count += a->dir_level != a->dir_inverted ? 1 : -1;
+		int up = a->dir_level != a->dir_inverted;
+		a->count += up ? 1 : -1;
+		if (lockstep) {
+			a->edges = grow(a->edges, &a->cap_edges, a->n_edges + 1, sizeof(long long));
+			long long c = (long long)avr->cycle + 1;
+			a->edges[a->n_edges++] = up ? c : -c;
+		}
 		counts_changed = 1;
 		drive_endstop(a);
 	}
@@ -118,6 +164,11 @@ static void on_uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
 	(void)irq;
 	(void)param;
 	uint8_t b = value;
+	if (lockstep) {
+		uart_out = grow(uart_out, &cap_out, n_out + 1, 1);
+		uart_out[n_out++] = b;
+		return;
+	}
 	if (pty_master >= 0 && write(pty_master, &b, 1) < 0 && errno != EAGAIN)
 		pty_master = -1;
 }
@@ -181,12 +232,29 @@ static int open_pty(const char *link)
 	return 0;
 }
 
-static void wire(void)
+/* settings a reset may undo: UART0 neither sleeps on polls nor echoes to stdio, and no
+ * strict level interrupts */
+static void configure(void)
 {
 	uint32_t flags = 0;
 	avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
 	flags &= ~(AVR_UART_FLAG_POLL_SLEEP | AVR_UART_FLAG_STDIO);
 	avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+	/* an endstop held low on an INTn pin (the Chiron's Z2 stop, D18/INT3) would re-raise a
+	 * low-level interrupt every cycle in simavr's strict mode, slowing the run 4x; the
+	 * firmware does not use INTn (Marlin polls endstops without ENDSTOP_INTERRUPTS_FEATURE),
+	 * and an edge still raises it once */
+	for (uint8_t i = 0; i < 8; i++)
+		avr_extint_set_strict_lvl_trig(avr, i, 0);
+	for (int i = 0; i < n_axes; i++) {
+		axes[i].end_level = -1;
+		drive_endstop(&axes[i]);
+	}
+}
+
+static void wire(void)
+{
+	configure();
 	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
 				on_uart_out, NULL);
 	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
@@ -208,6 +276,78 @@ static void wire(void)
 	}
 }
 
+static int hexval(int c)
+{
+	return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 :
+	       c >= 'A' && c <= 'F' ? c - 'A' + 10 : -1;
+}
+
+/* the caller owns time: commands on stdin, results on stdout (see the top of the file) */
+static int run_lockstep(void)
+{
+	avr_irq_t *uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+	uint8_t *inq = NULL;
+	size_t in_len = 0, in_pos = 0, in_cap = 0, line_cap = 0;
+	char *line = NULL;
+	int state = cpu_Running;
+	while (!stop_requested && getline(&line, &line_cap, stdin) > 0) {
+		if (!strncmp(line, "quit", 4))
+			break;
+		if (line[0] == 'w' && line[1] == ' ') {
+			size_t n = strcspn(line + 2, "\r\n") / 2;
+			if (in_pos == in_len)
+				in_pos = in_len = 0;
+			inq = grow(inq, &in_cap, in_len + n, 1);
+			for (size_t i = 0; i < n; i++) {
+				int hi = hexval(line[2 + 2 * i]), lo = hexval(line[3 + 2 * i]);
+				if (hi >= 0 && lo >= 0)
+					inq[in_len++] = (uint8_t)(hi << 4 | lo);
+			}
+			continue;
+		}
+		if (!strncmp(line, "reset", 5)) {
+			avr_reset(avr);
+			configure();
+			in_pos = in_len = 0;  /* the bootloader does not keep what came meanwhile */
+			uart_xon = 1;
+			state = cpu_Running;
+		} else if (line[0] == 'r' && line[1] == ' ') {
+			unsigned long long target = strtoull(line + 2, NULL, 10);
+			while (avr->cycle < target && state != cpu_Done && state != cpu_Crashed) {
+				state = avr_run(avr);
+				while (in_pos < in_len && uart_xon)
+					avr_raise_irq(uart_in, inq[in_pos++]);
+			}
+			if (n_out) {
+				printf("u ");
+				for (size_t i = 0; i < n_out; i++)
+					printf("%02x", uart_out[i]);
+				printf("\n");
+				n_out = 0;
+			}
+			for (int i = 0; i < n_axes; i++) {
+				axis_t *a = &axes[i];
+				if (!a->n_edges)
+					continue;
+				printf("e %d", i);
+				for (size_t k = 0; k < a->n_edges; k++)
+					printf(" %lld", a->edges[k]);
+				printf("\n");
+				a->n_edges = 0;
+			}
+		} else {
+			fprintf(stderr, "stage_harness: unknown command %s", line);
+			continue;
+		}
+		printf("d %llu %d\n", (unsigned long long)avr->cycle, state);
+		fflush(stdout);
+	}
+	free(line);
+	free(inq);
+	avr_terminate(avr);
+	return 0;
+}
+
 int main(int argc, char **argv)
 {
 	const char *elf = NULL, *mcu = "atmega2560", *link = NULL;
@@ -220,6 +360,8 @@ int main(int argc, char **argv)
 			freq = strtoul(argv[++i], NULL, 10);
 		else if (!strcmp(argv[i], "--speed") && i + 1 < argc)
 			speed = atof(argv[++i]);
+		else if (!strcmp(argv[i], "--lockstep"))
+			lockstep = 1;
 		else if (!strcmp(argv[i], "--link") && i + 1 < argc)
 			link = argv[++i];
 		else if (!strcmp(argv[i], "--axis") && i + 1 < argc && n_axes < MAX_AXES) {
@@ -237,7 +379,7 @@ int main(int argc, char **argv)
 	}
 	if (!elf) {
 		fprintf(stderr, "usage: stage_harness FIRMWARE.elf [--mcu M] [--freq HZ] "
-			"[--speed X] [--link PATH] [--axis NAME:STEP:DIR:END:TRIGGER ...]\n");
+			"[--speed X] [--link PATH] [--lockstep] [--axis NAME:STEP:DIR:END:TRIGGER ...]\n");
 		return 2;
 	}
 	elf_firmware_t fw;
@@ -258,13 +400,17 @@ int main(int argc, char **argv)
 	avr_init(avr);
 	avr->log = LOG_ERROR;  /* simavr's own messages would mix with the report lines */
 	avr_load_firmware(avr, &fw);
+	signal(SIGINT, on_signal);
+	signal(SIGTERM, on_signal);
+	if (lockstep) {
+		wire();
+		return run_lockstep();
+	}
 	if (open_pty(link) < 0) {
 		perror("stage_harness: pty");
 		return 2;
 	}
 	wire();
-	signal(SIGINT, on_signal);
-	signal(SIGTERM, on_signal);
 	fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
 
 	double wall0 = wall_s(), last_report = -1.0;

@@ -25,7 +25,8 @@ class AvrStageError(RuntimeError):
 @dataclass(frozen=True)
 class AxisPins:
     """One stepper axis: pins as port letter + bit ('F0'), endstop '-' if none; dir_inverted
-    as Marlin's INVERT_x_DIR; the endstop reads triggered at counts <= trigger_steps."""
+    as Marlin's INVERT_x_DIR; the endstop reads triggered at counts <= trigger_steps, high or,
+    with endstop_hit_low, low (Marlin's x_MIN_ENDSTOP_HIT_STATE LOW)."""
 
     name: str
     step: str
@@ -33,16 +34,33 @@ class AxisPins:
     endstop: str = "-"
     trigger_steps: int = 0
     dir_inverted: bool = False
+    endstop_hit_low: bool = False
 
     def spec(self) -> str:
         """The harness's --axis argument."""
+        end = ("!" if self.endstop_hit_low and self.endstop != "-" else "") + self.endstop
         return (f"{self.name}:{self.step}:{'!' if self.dir_inverted else ''}{self.dir}:"
-                f"{self.endstop}:{self.trigger_steps}")
+                f"{end}:{self.trigger_steps}")
 
 
-# RAMPS 1.4 (the Chiron's Trigorilla board): X, Y, Z and E0 (the turntable, axis A)
+# RAMPS 1.4: X, Y, Z and E0 (the turntable, axis A)
 RAMPS = (AxisPins("X", "F0", "F1", "E5"), AxisPins("Y", "F6", "F7", "J1"),
          AxisPins("Z", "L3", "L1", "D3"), AxisPins("A", "A4", "A6", "-"))
+
+
+def chiron_axes(start_mm: tuple[float, float, float] = (30.0, 30.0, 10.0),
+                steps_per_unit: tuple[float, ...] = (80, 100, 400)) -> tuple[AxisPins, ...]:
+    """The Chiron's Trigorilla 1.4 as Marlin maps it (TRIGORILLA_MAPPING_CHIRON in
+    pins_TRIGORILLA_14.h; INVERT_X/Y/Z_DIR true, X/Y endstops hit LOW, Z and Z2 HIGH in the
+    Chiron example configuration): X D54/D55 stop D3, Y D60/D61 stop D42, Z D36/D34 stop D43,
+    Z2 D46/D48 stop D18, A on E0 D26/D28. The carriage starts start_mm (X, Y, Z) above each
+    min endstop, so the harness's counts read 0 where the stage was switched on."""
+    trig = [-round(m * s) for m, s in zip(start_mm, steps_per_unit)]
+    return (AxisPins("X", "F0", "F1", "E5", trig[0], True, True),
+            AxisPins("Y", "F6", "F7", "L7", trig[1], True, True),
+            AxisPins("Z", "C1", "C3", "L6", trig[2], True),
+            AxisPins("Z2", "L3", "L1", "D3", trig[2], True),
+            AxisPins("A", "A4", "A6", "-"))
 
 
 class AvrStage:

@@ -92,6 +92,14 @@ class MarlinEmulator(GcodeMixin):
         return self.planner.position()
 
     # ------------------------------------------------------------------ bytes in/out
+    def position_at(self, t: float) -> np.ndarray:
+        """Where the steppers were at time t (s), from the endstops (mm, deg)."""
+        return self.planner.position_at(t)
+
+    def step_edges(self, axis: int, t_from: float, t_to: float) -> np.ndarray:
+        """Times (s) of the STEP pulses of `axis` in (t_from, t_to]."""
+        return self.planner.step_edges(axis, t_from, t_to)
+
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host; the emergency parser sees them at once."""
         if now < self.booting_until:

@@ -22,6 +22,7 @@ from ..physics.signals import SensorModel, arrival_times_us
 from .faults import FaultyChannel, LinkFaults, parse_faults
 
 if TYPE_CHECKING:
+    from ..boards.avr_board import AvrStageBoard
     from ..boards.rehost.board import RehostedSensor
 
 STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
@@ -47,6 +48,9 @@ class SimConfig:
     # "" runs the firmware core (PC build); "nucleo" or an ELF path runs that NUCLEO ELF
     # on the rehosted H743 (hil_sim/boards/rehost)
     sensor_firmware: str = ""
+    # "" runs the Marlin emulator; an AVR ELF path runs that stage firmware (Marlin built from
+    # firmware/marlin_patch) under simavr in lock-step (hil_sim/boards/avr_board.py)
+    stage_firmware: str = ""
     # the motion-sync wire from the stage's X STEP line to the sensor board (docs/firmware.md)
     sync_wire: bool = True
 
@@ -67,7 +71,13 @@ class Simulation:
         self.scene = Scene(v=np.array(cfg.v), n=np.array(cfg.n), X_R=np.array(cfg.X_R),
                            objects=SCENES[cfg.scene]() + list(cfg.objects))
         self.model = SensorModel(temperature_c=cfg.temperature_c)
-        self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
+        self.stage: MarlinEmulator | AvrStageBoard
+        if cfg.stage_firmware:
+            from ..boards.avr_board import AvrStageBoard
+            self.stage = AvrStageBoard(cfg.stage_firmware, self.limits, seed=cfg.seed,
+                                       faults=stage_faults)
+        else:
+            self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor: SensorBoard | RehostedSensor
         sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
@@ -94,7 +104,7 @@ class Simulation:
         S is the stage's physical position with {0} at logical (0, 0, 0) after homing
         (raw steps + the homed origin), plus a fixed per-position scatter.
         """
-        raw = self.stage.planner.position_at(t)
+        raw = self.stage.position_at(t)
         S = raw[:3] + np.asarray(self.limits.min_pos[:3], float)
         S = S + hash_noise("S[{:.3f} {:.3f} {:.3f}]".format(*raw[:3]),
                            self.cfg.stage_noise_mm, 3, self.cfg.seed)
@@ -105,7 +115,7 @@ class Simulation:
     def x_step_edges(self, t_from: float, t_to: float) -> np.ndarray:
         """Times (s) of the X stepper's STEP pulses in (t_from, t_to]: the motion-sync wire
         from the stage board's X STEP line to the sensor board (docs/firmware.md)."""
-        return self.stage.planner.step_edges(self.limits.axis("X"), t_from, t_to)
+        return self.stage.step_edges(self.limits.axis("X"), t_from, t_to)
 
     def truth(self) -> dict:
         """What the host must estimate: v, n, X_R, c, t0s, the current pose and distance."""
@@ -119,6 +129,12 @@ class Simulation:
                 "distance_mm": hit.d, "material": hit.material, "object": hit.obj,
                 "arrival_oa_us": oa, "arrival_us_us": us, "time_s": self.t,
                 "config": {k: v for k, v in asdict(self.cfg).items() if k != "objects"}}
+
+    def close(self) -> None:
+        """Stop what runs outside this process (the stage firmware's simavr harness)."""
+        close = getattr(self.stage, "close", None)
+        if close is not None:
+            close()
 
     # ------------------------------------------------------------------ host side
     def write(self, link: str, data: bytes) -> None:

@@ -30,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor-firmware", default="", metavar="nucleo|ELF",
                    help="run this NUCLEO firmware ELF ('nucleo': the one `make` builds) on "
                         "the rehosted H743 instead of the firmware core")
+    p.add_argument("--stage-firmware", default="", metavar="ELF",
+                   help="run this stage firmware (Marlin.elf built from firmware/marlin_patch, "
+                        "docs/marlin.md) under simavr instead of the Marlin emulator")
     p.add_argument("--json", action="store_true", help="print the ports as one JSON line")
     p.set_defaults(func=cmd_sim)
 
@@ -51,7 +54,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         sim = Simulation(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
                                    temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
                                    sensor_link_bytes_per_s=args.sensor_link,
-                                   sensor_firmware=args.sensor_firmware))
+                                   sensor_firmware=args.sensor_firmware,
+                                   stage_firmware=args.stage_firmware))
     except (ValueError, TypeError, OSError, RuntimeError) as e:
         raise CliError(str(e)) from None
     server = PtyServer(sim, speed=args.speed, link_dir=args.link_dir)
@@ -73,6 +77,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
+    except RuntimeError as e:  # the stage firmware's harness ended or the firmware crashed
+        raise CliError(f"the stage firmware stopped: {e}") from None
+    finally:
+        sim.close()
     broken = getattr(sim.sensor, "violation", None)
     if broken is not None:
         raise CliError(f"the sensor firmware broke a hardware rule and halted: {broken}")

@@ -1,4 +1,6 @@
-"""The stage under test: a real Marlin (DMDSM_STAGE_PORT=/dev/ttyUSB0) or hil_sim on a pty."""
+"""The stage under test: a real board (DMDSM_STAGE_PORT=/dev/ttyUSB0), a stage firmware ELF
+under simavr (DMDSM_STAGE_FIRMWARE=Marlin.elf, as `make check-marlin` runs it) or the Marlin
+emulator, each on a pty."""
 
 import os
 import threading
@@ -19,12 +21,16 @@ def stage_url():
     if url:
         yield url, 1.0
         return
-    server = PtyServer(Simulation(SimConfig(seed=1)), speed=SPEED)
+    elf = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
+    speed = 1.0 if elf else SPEED  # simavr runs Marlin at about twice real time at most
+    sim = Simulation(SimConfig(seed=1, stage_firmware=elf))
+    server = PtyServer(sim, speed=speed)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    yield server.ports["stage"].name_for_host, SPEED
+    yield server.ports["stage"].name_for_host, speed
     server.stop()
     thread.join(5)
+    sim.close()
 
 
 @pytest.fixture

@@ -21,7 +21,8 @@ PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
 CORE_C := $(wildcard firmware/stm32/core/*.c)
 CORE_H := $(wildcard firmware/stm32/core/*.h)
 
-.PHONY: all deps venv build firmware avr test test-c fuzz lint gen-check gen bench demo clean
+.PHONY: all deps venv build firmware avr test test-c fuzz lint gen-check gen bench demo clean \
+  check-marlin
 
 all: build
 
@@ -150,6 +151,22 @@ bench: deps firmware
 	$(PY) bench/emulator.py
 	$(PY) bench/scan.py
 	$(PY) bench/classify.py
+
+## ---------------------------------------------------------------- the real Marlin
+# make check-marlin MARLIN=DIR: patch and build that Marlin checkout (with the Chiron example
+# configuration copied in: docs/marlin.md) and run the stage conformance and fault suites
+# against the built firmware under simavr. Marlin's code stays in DIR; the build goes to
+# build/marlin. APPLY_FLAGS=--force patches a Marlin version other than the pinned one.
+MARLIN_BUILD := build/marlin
+check-marlin: deps avr
+	@test -n "$(MARLIN)" || { echo "usage: make check-marlin MARLIN=/path/to/Marlin (docs/marlin.md)" >&2; exit 2; }
+	@dpkg-query -W -f='$${Status}' arduino-core-avr 2>/dev/null | grep -q "ok installed" || { \
+	  echo "installing: arduino-core-avr"; export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get update -qq && apt-get install -y -qq --no-install-recommends arduino-core-avr; }
+	$(PY) firmware/marlin_patch/apply.py $(APPLY_FLAGS) $(MARLIN)
+	sh firmware/marlin_patch/build_debian.sh $(MARLIN) $(CURDIR)/$(MARLIN_BUILD)
+	DMDSM_STAGE_FIRMWARE=$(CURDIR)/$(MARLIN_BUILD)/Marlin.elf $(PY) -m pytest -q -p no:cacheprovider \
+	  --durations=10 tests/stage
 
 ## ---------------------------------------------------------------- demo
 demo: deps

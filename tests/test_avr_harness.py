@@ -5,6 +5,7 @@ paced to the wall clock. Marlin itself runs under it in `make check-marlin`."""
 
 import time
 
+import numpy as np
 import pytest
 import serial
 
@@ -76,3 +77,86 @@ def test_a_bad_firmware_file_is_one_clear_error(tmp_path):
         AvrStage(junk, X)
     with pytest.raises(AvrStageError, match="no such firmware file"):
         AvrStage(tmp_path / "none.elf", X)
+
+
+# ---------------------------------------------------------------- lock-step (dmdsm sim)
+# the same program as the stage board of a Simulation: `dmdsm sim --stage-firmware ELF`
+
+def lockstep_board(**kw):
+    from dmdsm.sim.boards.avr_board import AvrStageBoard
+    return AvrStageBoard(ELF, axes=(AxisPins("X", "F0", "F1", "E5", trigger_steps=-80),
+                                    AxisPins("Y", "F6", "F7", "-"), AxisPins("Z", "C1", "C3", "-"),
+                                    AxisPins("A", "A4", "A6", "-")), **kw)
+
+
+def run(board, t0, seconds, data=b""):
+    board.receive(data, t0)
+    out, t = b"", t0
+    while t < t0 + seconds:
+        t += 0.001
+        out += board.step(t)
+    return out, t
+
+
+def test_lockstep_echo_steps_and_their_cycle_exact_times():
+    b = lockstep_board()
+    try:
+        out, t = run(b, 0.0, 0.002)  # the program enables its UART first
+        out, t = run(b, t, 0.01, b"ok N1\n")
+        assert out == b"ok N1\n"
+        t_plus = t
+        out, t = run(b, t, 0.01, b"+")
+        assert out == b"S\n"
+        edges = b.step_edges(0, 0.0, t)
+        assert len(edges) == 100 and np.all(np.diff(edges) > 0) and edges[0] > t_plus
+        # 2 us high + 2 us low + the loop: 4.5-6 us apart, exact to the CPU cycle
+        assert 4e-6 < np.median(np.diff(edges)) < 6e-6
+        assert b.position_at(edges[49])[0] == pytest.approx((80 + 50) / 80.0)
+        assert b.position_at(t_plus)[0] == pytest.approx(1.0)  # 80 steps above the stop
+        out, t = run(b, t, 0.01, b"-e")
+        assert out == b"S\nE0\n"  # back where it started, 80 steps above the endstop
+        out, t = run(b, t, 0.01, b"-e")
+        assert out == b"S\nE1\n"  # past it: triggered
+        out, t = run(b, t, 0.01, b"+")
+        assert b.traces[0].runs == [100, -200, 100]
+    finally:
+        b.close()
+
+
+def test_lockstep_reset_drops_bytes_meanwhile_and_lost_oks_are_whole_lines():
+    from dmdsm.sim.boards.marlin import StageFaults
+    b = lockstep_board(faults=StageFaults(lose_next_oks=1))
+    try:
+        out, t = run(b, 0.0, 0.002)
+        out, t = run(b, t, 0.01, b"ok N1\nok N2\n")
+        assert out == b"ok N2\n"  # the first ok never reached the host
+        b.reset(t, boot_s=0.05)
+        out, t = run(b, t, 0.02, b"lost")  # the bootloader has it
+        out2, t = run(b, t + 0.05, 0.01, b"ok N3\n")
+        assert out == b"" and out2 == b"ok N3\n"
+    finally:
+        b.close()
+
+
+def test_sim_cli_runs_a_stage_firmware_and_refuses_a_bad_one(tmp_path):
+    import json
+    import subprocess
+    import sys
+    with subprocess.Popen([sys.executable, "-m", "dmdsm.host", "sim", "--json",
+                           "--stage-firmware", str(ELF)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True) as p:
+        try:
+            ports = json.loads(p.stdout.readline())
+            port = serial.Serial(ports["stage"], 250000, timeout=0.05)
+            time.sleep(0.3)  # bytes sent before the program enables its UART are lost
+            assert ask(port, b"ok N7\n") == b"ok N7\n" and ask(port, b"+") == b"S\n"
+            port.close()
+        finally:
+            p.terminate()
+            assert p.wait(10) == 0
+    junk = tmp_path / "junk.elf"
+    junk.write_bytes(b"\x7fELF junk")
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "sim", "--stage-firmware",
+                        str(junk)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "cannot read" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr

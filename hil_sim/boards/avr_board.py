@@ -27,10 +27,17 @@ class AxisTrace:
         self.base = 0           # before the first kept edge
         self.t = np.zeros(0)
         self.c = np.zeros(0, np.int64)
+        self.runs: list[int] = []  # signed lengths of the runs of steps in one direction
 
     def add(self, signed_cycles: np.ndarray, now: float) -> None:
         """Steps of one run: cycle + 1, negative for a step down."""
         steps = np.sign(signed_cycles)
+        turns = np.flatnonzero(np.diff(steps)) + 1
+        for run in np.split(steps, turns):
+            if self.runs and np.sign(self.runs[-1]) == run[0]:
+                self.runs[-1] += int(run.sum())
+            else:
+                self.runs.append(int(run.sum()))
         t = (np.abs(signed_cycles) - 1) / F_CPU_HZ
         c = self.count + np.cumsum(steps)
         self.count = int(c[-1])
@@ -80,7 +87,12 @@ class AvrStageBoard:
         self.cycle = 0
         self.partial = b""  # output after the last newline (lost_ok works on whole lines)
         self.out_buffer = b""  # output not yet collected by step()
-        self._command("r 0")
+        self.booting_until = 0.0  # the bootloader's time after a reset (s)
+        try:
+            self._command("r 0")
+        except AvrStageError:
+            self.close()
+            raise
 
     # ------------------------------------------------------------------ the harness
     def _command(self, line: str) -> bytes:
@@ -117,7 +129,7 @@ class AvrStageBoard:
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host into UART0 (fed as fast as the UART takes them)."""
         self._run_to(now)  # the firmware runs up to the moment the bytes arrive
-        if data:
+        if data and now >= self.booting_until:
             try:
                 self.proc.stdin.write("w " + data.hex() + "\n")
             except (BrokenPipeError, OSError):
@@ -133,20 +145,29 @@ class AvrStageBoard:
         if now > self.now:
             self.now = now
             self.out_buffer += self._command(f"r {round(now * F_CPU_HZ)}")
+            if now < self.booting_until:  # still in the bootloader: Marlin has not started
+                self._command("reset")
 
     def _drop_oks(self, data: bytes) -> bytes:
         """The stage.lost_ok fault: whole `ok` lines vanish on their way to the host."""
-        if not self.faults.lost_ok or not data:
+        f = self.faults
+        if not (f.lost_ok or f.lose_next_oks):
+            data, self.partial = self.partial + data, b""
             return data
-        text = self.partial + data
-        *lines, self.partial = text.split(b"\n")
-        kept = [x for x in lines
-                if not (x.startswith(b"ok") and self.rng.random() < self.faults.lost_ok)]
+        *lines, self.partial = (self.partial + data).split(b"\n")
+        kept = []
+        for x in lines:
+            if x.startswith(b"ok") and f.lose_next_oks > 0:
+                f.lose_next_oks -= 1
+            elif not (x.startswith(b"ok") and f.lost_ok and self.rng.random() < f.lost_ok):
+                kept.append(x)
         return b"".join(x + b"\n" for x in kept)
 
     def reset(self, now: float, boot_s: float = 0.0) -> None:
-        """The DTR reset of opening the port (the firmware restarts; the carriage stays)."""
-        self.step(now)
+        """The DTR reset of opening the port: the bootloader holds the chip for boot_s and
+        takes what the host sends meanwhile, then the firmware restarts (the carriage stays)."""
+        self._run_to(now)
+        self.booting_until = now + boot_s
         self._command("reset")
 
     def position_at(self, t: float) -> np.ndarray:
@@ -175,4 +196,7 @@ class AvrStageBoard:
                 self.proc.kill()
                 self.proc.wait(5)
         for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
-            f.close()
+            try:
+                f.close()
+            except OSError:  # a write to a harness that ended is still buffered
+                pass

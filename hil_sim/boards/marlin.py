@@ -27,6 +27,7 @@ class StageFaults:
     lost_ok: float = 0.0          # an `ok` is not sent
     spurious_resend: float = 0.0  # a good line is reported as corrupt and asked again
     busy_extra_s: float = 0.0     # blocking commands (G28, M400, G4) take this much longer
+    lose_next_oks: int = 0        # the next this many `ok`s are not sent (tests)
 
 
 READ_LAG_BYTES = 12  # bytes that arrive (at 250 kbaud, ~0.5 ms) before the main loop reads a
@@ -222,6 +223,9 @@ class MarlinEmulator(GcodeMixin):
         self.queue.append((text.strip(), n))
 
     def _ok(self, n: int | None) -> None:
+        if self.faults.lose_next_oks > 0:
+            self.faults.lose_next_oks -= 1
+            return
         if self.faults.lost_ok and self.rng.random() < self.faults.lost_ok:
             return
         free_p = self.limits.block_buffer_size - len(self.planner.queue) - 1

@@ -1,0 +1,62 @@
+"""Shared by the fly-scan tests (tests/host, and tests/stage against the stage under test):
+the ranging calibration and plan on the emulator's block, every shot's true pose, the CLI."""
+
+import sys
+
+import numpy as np
+
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.links.stage import StageClient
+from dmdsm.host.ranging.procedure import calibrate_range
+from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.sim.boards.sensor import TICK_HZ
+
+PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}  # e mean, std (mm), paper §V-A2
+
+
+def setup(emu, tmp_path, angles=(0.0, 90.0)):
+    """Ranging calibration, the emulator's true v, n, X_R, and a fly plan of the block."""
+    with StageClient(emu.stage) as st:
+        st.home()
+        st.move(x=235, y=266, z=20, wait=True)
+        st.wait()
+        sc = SensorClient(emu.sensor)
+        try:
+            ranging, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20},
+                                         emu.sim.truth()["distance_mm"], steps=6, step_mm=1.0,
+                                         shots=2, fit_c=False, lateral=5)
+        finally:
+            sc.close()
+        st.home()  # away from the object: the scan's approach starts outside its keep-out
+    ranging.save(tmp_path / "ranging.json")
+    s = emu.sim.scene
+    cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
+           "X_R": s.X_R.tolist()}
+    text = "[calibration]\n" + "".join(f"{k} = {v}\n" for k, v in cal.items())
+    (tmp_path / "cal.toml").write_text(text)
+    plan = ScanPlan("aluminium_block", "aluminium", radius_mm=30.0, height_mm=40.0,
+                    levels_mm=[20.0], angles_deg=list(angles), half_width_mm=32.0,
+                    step_mm=1.0, average=12, mode="fly")
+    (tmp_path / "plan.toml").write_text(plan.to_toml())
+    return ranging, cal, text, plan
+
+
+def record_poses(sim):
+    """Every laser shot's true sensor position, by device tick."""
+    shots = []
+    pose = sim.pose
+
+    def recording(t):
+        S, theta = pose(t)
+        shots.append((round(t * TICK_HZ), *S))
+        return S, theta
+
+    sim.sensor.pose = recording
+    return shots
+
+
+def scan_cmd(emu, tmp_path, scan_id, *extra):
+    return [sys.executable, "-m", "dmdsm.host", "scan", "--sensor", emu.sensor, "--stage",
+            emu.stage, "--calibration", str(tmp_path / "cal.toml"), "--ranging",
+            str(tmp_path / "ranging.json"), "--plan", str(tmp_path / "plan.toml"), "--db",
+            str(tmp_path / "db"), "--scan-id", scan_id, "--no-home", *extra]

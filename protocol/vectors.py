@@ -45,7 +45,8 @@ def _messages() -> list[tuple[str, Message]]:
     cfg = dict(n_samples=1024, sample_rate_div=1, n_average=16, pretrigger=64, trigger_edge=0,
                modality=0, sample_format=0, trigger_timeout_ms=1000)
     wf = dict(shot_id=7, timestamp=480_000_123, trigger_phase=37, n_average=16, pretrigger=8,
-              sample_rate_div=1, modality=1, shots_dropped=2, adc_overruns=0, integrity_faults=3)
+              sample_rate_div=1, modality=1, shots_dropped=2, adc_overruns=0, integrity_faults=3,
+              sync_steps=40_321)
     return [
         ("ping", Message("ping", seq=1, nonce=0xDEADBEEF)),
         ("pong", Message("pong", seq=1, flags=1, nonce=0xDEADBEEF)),
@@ -99,7 +100,7 @@ def _rejects() -> list[tuple[str, str, bytes]]:
         ("reject_runt", "malformed", b"\x00\x03\x01\x02\x00"),
         ("reject_bad_cobs", "malformed", b"\x00\x09\x01\x02\x00"),
         ("reject_bad_sample_format", "malformed", encode_raw(0xA0, 1, 0, bytes(20) + b"\x07"
-                                                             + bytes(13) + b"\x01\x02")),
+                                                             + bytes(17) + b"\x01\x02")),
     ]
 
 

@@ -62,7 +62,7 @@ static const struct dmdsm_msg_info infos[] = {
     {0x88, 0, 0, 16, 0x00, "clock_sync_reply"},
     {0xf0, 0, 0, 1, 0x00, "ack"},
     {0xf1, 0, 0, 4, 0x00, "nak"},
-    {0xa0, 0, 3, 34, 0x00, "waveform"},
+    {0xa0, 0, 3, 38, 0x00, "waveform"},
     {0xa1, 0, 2, 2, 0x00, "log"},
     {0xa2, 0, 0, 24, 0x00, "motion_sync"},
 };
@@ -415,9 +415,10 @@ size_t dmdsm_pack_waveform(const struct dmdsm_waveform *m, uint8_t *out)
     put_le(out + 22, (uint64_t)(uint32_t)m->shots_dropped, 4);
     put_le(out + 26, (uint64_t)(uint32_t)m->adc_overruns, 4);
     put_le(out + 30, (uint64_t)(uint32_t)m->integrity_faults, 4);
+    put_le(out + 34, (uint64_t)(uint32_t)m->sync_steps, 4);
     if (m->samples_len)
-        memcpy(out + 34, m->samples, m->samples_len);
-    return 34u + m->samples_len;
+        memcpy(out + 38, m->samples, m->samples_len);
+    return 38u + m->samples_len;
 }
 
 bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *m)
@@ -435,8 +436,9 @@ bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *
     m->shots_dropped = (uint32_t)get_le(p + 22, 4);
     m->adc_overruns = (uint32_t)get_le(p + 26, 4);
     m->integrity_faults = (uint32_t)get_le(p + 30, 4);
-    m->samples = p + 34;
-    m->samples_len = len - 34u;
+    m->sync_steps = (uint32_t)get_le(p + 34, 4);
+    m->samples = p + 38;
+    m->samples_len = len - 38u;
     return true;
 }
 
@@ -597,8 +599,9 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "shots_dropped=%llu ", (unsigned long long)get_le(payload + 22, 4));
         put(&w, "adc_overruns=%llu ", (unsigned long long)get_le(payload + 26, 4));
         put(&w, "integrity_faults=%llu ", (unsigned long long)get_le(payload + 30, 4));
-        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 34u),
-            (unsigned long)crc32_of(payload + 34, len - 34u));
+        put(&w, "sync_steps=%llu ", (unsigned long long)get_le(payload + 34, 4));
+        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 38u),
+            (unsigned long)crc32_of(payload + 38, len - 38u));
         break;
     }
     case 0xa1: {

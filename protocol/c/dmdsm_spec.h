@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 #define DMDSM_PROTOCOL_VERSION 1u
-#define DMDSM_SPEC_HASH UINT64_C(0x04673408e4094032)
+#define DMDSM_SPEC_HASH UINT64_C(0x74431f214c0bdf1c)
 #define DMDSM_MAX_PAYLOAD 16448u
 #define DMDSM_MAX_COMMAND_PAYLOAD 64u
 #define DMDSM_SYNC_QUIET_MS 20u
@@ -259,7 +259,7 @@ size_t dmdsm_pack_nak(const struct dmdsm_nak *m, uint8_t *out);
 bool dmdsm_unpack_nak(const uint8_t *p, size_t len, struct dmdsm_nak *m);
 
 /* waveform: one averaged shot; seq counts waveform frames so the host sees gaps (device -> host) */
-#define DMDSM_WAVEFORM_FIXED_SIZE 34u
+#define DMDSM_WAVEFORM_FIXED_SIZE 38u
 struct dmdsm_waveform {
     uint32_t shot_id; /* counts waveforms since arm, from 0; gaps = dropped shots */
     uint64_t timestamp; /* device clock at the first averaged shot's edge [ticks] */
@@ -272,6 +272,7 @@ struct dmdsm_waveform {
     uint32_t shots_dropped; /* device's cumulative dropped-waveform counter */
     uint32_t adc_overruns; /* device's cumulative ADC overrun counter */
     uint32_t integrity_faults; /* device's cumulative sample-integrity fault counter (bursts dropped: DMA position disagreed with the timer) */
+    uint32_t sync_steps; /* sum over the averaged shots of the motion-sync edges counted in the open burst before each shot's edge: / n_average, the mean X steps made since the burst began (0 with no burst open) [steps] */
     const uint8_t *samples; /* the waveform; element type from sample_format */
     size_t samples_len; /* bytes */
 };

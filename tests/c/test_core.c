@@ -540,6 +540,44 @@ static void test_motion_sync_bursts(void)
     CHECK(n_msgs == 0); /* reported once */
 }
 
+/* each waveform counts the sync edges before each of its shots' laser edges, even when the
+ * capture completes after later edges came in, and across the 32-bit wrap */
+static void test_waveforms_count_the_steps_before_their_shots(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_average = 3;
+    c.n_samples = 16;
+    set_config(1, &c);
+    expect_ack(DMDSM_MSG_SET_CONFIG, 1);
+    arm(2, 2);
+    expect_ack(DMDSM_MSG_ARM, 2);
+    B.now = 0xFFFFF000u;
+    uint32_t step = 0xFFFFF000u; /* X steps every 150 ticks from here */
+    uint32_t counts[6];
+    for (int i = 0; i < 6; i++) {
+        uint32_t laser = 0xFFFFF000u + 700u * (uint32_t)i + 75u; /* between two steps */
+        /* the capture completes 4 steps (600 ticks) after its laser edge */
+        while ((int32_t)(step - (laser + 600u)) <= 0) {
+            dmdsm_core_sync_edge(&core, step);
+            step += 150u;
+        }
+        B.now = laser + 600u;
+        counts[i] = (laser - 0xFFFFF000u) / 150u + 1u; /* edges at or before the laser's */
+        shot(100, laser);
+    }
+    drain();
+    CHECK(n_msgs == 2);
+    struct dmdsm_waveform w;
+    CHECK(dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
+    CHECK(w.sync_steps == counts[0] + counts[1] + counts[2]);
+    CHECK(dmdsm_unpack_waveform(msgs[1].payload, msgs[1].len, &w));
+    CHECK(w.sync_steps == counts[3] + counts[4] + counts[5] && counts[5] == 24u);
+    CHECK(B.locks == 0);
+    /* no burst open: 0 */
+    CHECK(dmdsm_core_sync_count_at(&core, step + 1000u) == core.sync_edges);
+}
+
 int main(void)
 {
     test_ping_identify();
@@ -558,6 +596,7 @@ int main(void)
     test_unavailable_capture_naks_arm();
     test_clock_sync();
     test_motion_sync_bursts();
+    test_waveforms_count_the_steps_before_their_shots();
     if (failures) {
         fprintf(stderr, "test_core: %d check(s) failed\n", failures);
         return 1;

@@ -18,6 +18,9 @@
 #endif
 #define DMDSM_CORE_WAVE_SLOTS 2u /* waveform frames: one on the wire, one ready */
 #define DMDSM_CORE_CTL_SLOTS 4u  /* responses and log lines waiting for the link */
+/* sync edge times kept to count the edges before a shot: a burst's capture-done comes one
+ * ADC burst (~0.3 ms) after its laser edge, when X (<= 16 kHz of steps) made at most ~6 more */
+#define DMDSM_SYNC_RING 16u
 #define DMDSM_CORE_CTL_FRAME DMDSM_WIRE_SIZE(240u)
 #define DMDSM_CORE_RX_CAP \
     DMDSM_ENCODED_SIZE(DMDSM_HEADER_SIZE + DMDSM_MAX_COMMAND_PAYLOAD + DMDSM_CRC_SIZE)
@@ -54,11 +57,14 @@ struct dmdsm_core {
     uint32_t n_in_avg;
     uint64_t avg_first_edge;
     uint32_t avg_phase_sum;
+    uint32_t avg_sync_steps; /* sum of each averaged shot's sync edge count */
     struct dmdsm_counters count;
     /* motion-sync input (sync.c): written by the board's edge interrupt, read by poll */
     volatile uint32_t sync_first; /* 32-bit ticks of the open burst's first edge */
     volatile uint32_t sync_last;  /* ... and of its latest edge */
     volatile uint32_t sync_edges; /* edges in the open burst; 0 = no burst open */
+    /* ticks of the open burst's latest edges: edge n at [n % DMDSM_SYNC_RING] */
+    volatile uint32_t sync_ring[DMDSM_SYNC_RING];
     uint32_t sync_burst_id;       /* next motion_sync's burst_id */
     /* receive */
     struct dmdsm_decoder rx;
@@ -98,6 +104,8 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
 void dmdsm_core_sync_edge(struct dmdsm_core *c, uint32_t ticks);
 /* from poll: report a burst that has been quiet for DMDSM_SYNC_QUIET_MS */
 void dmdsm_core_sync_poll(struct dmdsm_core *c);
+/* edges of the open burst at or before 32-bit ticks (a laser edge of the last ~1 ms) */
+uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, uint32_t ticks);
 /* run from the main loop: starts queued transfers, checks the trigger timeout */
 void dmdsm_core_poll(struct dmdsm_core *c);
 /* current time in ticks, 64-bit */

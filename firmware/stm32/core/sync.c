@@ -7,8 +7,10 @@
  * The board's capture interrupt calls dmdsm_core_sync_edge() for every rising
  * edge; a burst is the run of edges of one move, and it ends when the input
  * has been quiet for DMDSM_SYNC_QUIET_MS. poll() then sends one motion_sync
- * with the first and last edge and the count, so the host can place a fly
- * scan's shots on the planner's trajectory and check the move's step count.
+ * with the first and last edge and the count, so the host can check the
+ * move's step count; and each waveform carries the edges counted before its
+ * shots (sync_steps), so the host knows where X was at every shot without
+ * modelling how the stage's firmware ramps its steps.
  *
  * The interrupt only writes three words. poll reads and closes them with the
  * board's sync interrupt held off (ops->sync_lock, a few instructions): the
@@ -22,7 +24,22 @@ void dmdsm_core_sync_edge(struct dmdsm_core *c, uint32_t ticks)
     if (n == 0)
         c->sync_first = ticks;
     c->sync_last = ticks;
+    c->sync_ring[n % DMDSM_SYNC_RING] = ticks;
     c->sync_edges = n + 1u;
+}
+
+uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, uint32_t ticks)
+{
+    if (c->ops->sync_lock)
+        c->ops->sync_lock(c->ops->ctx, true);
+    uint32_t n = c->sync_edges, later = 0;
+    /* the edges that came after `ticks` are the latest ones: walk back over them */
+    while (later < n && later < DMDSM_SYNC_RING &&
+           (int32_t)(c->sync_ring[(n - 1u - later) % DMDSM_SYNC_RING] - ticks) > 0)
+        later++;
+    if (c->ops->sync_lock)
+        c->ops->sync_lock(c->ops->ctx, false);
+    return n - later;
 }
 
 /* 64-bit time of a 32-bit tick value at most one wrap before now */

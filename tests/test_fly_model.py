@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from dmdsm.host.links.safety import UnsafeMove
 from dmdsm.host.links.sensor import ClockSync
-from dmdsm.host.scan.fly import LineMotion, place_shots, ramp_mm
+from dmdsm.host.scan.fly import LineMotion, at_line_speed, counted_x, place_shots, ramp_mm
 from dmdsm.host.scan.fly_executor import FlyLine, LineRejected, _measure, straddles
 from dmdsm.host.scan.plan import PlanError, Point, ScanPlan
 from dmdsm.host.scan.session import checked_points
@@ -108,6 +108,23 @@ def test_shots_are_placed_only_when_the_measured_duration_fits_the_model():
                     ts, 12, 1e-3)
 
 
+@given(st.floats(-50, 300), st.floats(-60, 60).filter(lambda d: abs(d) > 1),
+       st.lists(st.integers(0, 4096 * 12), min_size=1, max_size=20))
+def test_counted_steps_give_the_position_whatever_the_ramps(x0, length, sums):
+    motion = LineMotion(x0, x0 + length, 80.0, ACCEL, SPU)
+    x = counted_x(motion, np.array(sums), 12)
+    start = round(x0 * SPU) / SPU  # Marlin's position is a whole number of steps
+    assert np.allclose((x - start) * np.sign(length) * SPU * 12, sums, atol=1e-6)
+
+
+def test_only_waveforms_moving_at_the_line_speed_count_as_cruising():
+    v, period = 80.0, 1e-3
+    x = np.concatenate([[0.0, 0.1, 0.4], 0.4 + 0.96 * np.arange(1, 8), [7.5, 7.6]])
+    ok = at_line_speed(x, v, 12, period)
+    # 0.96 mm per 12 ms at 80 mm/s: the ramp's waveforms have no neighbour that far away
+    assert ok.tolist() == [False, False, True] + [True] * 7 + [False, False]
+
+
 def test_a_waveform_next_to_a_depth_edge_or_a_miss_is_dropped():
     x = np.arange(10.0)
     d = np.array([np.nan, 20.0, 20.1, 20.0, 20.1, 35.0, 35.1, 35.0, 35.1, 35.0])
@@ -149,6 +166,12 @@ class FakeSensor:
         self.motion_syncs = deque()
         self.stream = None
 
+    def edges_before(self, t):
+        """X STEP edges at or before t seconds after the first (the board's count)."""
+        if t < 0:
+            return 0
+        return int(min(self.motion.n, np.floor(self.motion.steps_at(np.array([t]))[0]) + 1))
+
     def ticks(self, t):
         return int(self.clock.offset_ticks + self.clock.ticks_per_s * t)
 
@@ -174,7 +197,9 @@ class FakeSensor:
             edges=self.motion.n + self.edges_off))
         times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
         waves = [self.ns(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
-                         trigger_phase=7, samples=np.zeros(64, np.uint16))
+                         trigger_phase=7, samples=np.zeros(64, np.uint16),
+                         sync_steps=sum(self.edges_before(t + 1e-3 * k - start)
+                                        for k in range(12)))
                  for i, t in enumerate(times)]
         return waves, {"shots_dropped": 0, "adc_overruns": 0, "integrity_faults": 0}
 

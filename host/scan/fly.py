@@ -17,6 +17,7 @@ import numpy as np
 
 MINIMAL_STEP_RATE = 120.0  # steps/s: Marlin's lowest step rate of a moving block
 SCALE_TOLERANCE = 0.01     # |measured / modelled duration - 1| above this: not the move we made
+CRUISE_TOLERANCE = 0.03    # |counted / planned advance per waveform - 1| within this: cruising
 
 
 def line_speed_mm_s(step_mm: float, laser_hz: float, average: int) -> float:
@@ -105,6 +106,29 @@ class LineMotion:
         s = np.minimum(self.steps_at(t) + 0.5, self.n)
         x0 = round(self.x0 * self.steps_per_mm) / self.steps_per_mm
         return x0 + self.direction * s / self.steps_per_mm
+
+
+def counted_x(motion: LineMotion, sync_steps: np.ndarray, n_average: int) -> np.ndarray:
+    """Each waveform's mean X (mm) from the X steps the sensor counted before its shots
+    (waveform.sync_steps, summed over its n_average shots): measured, not modelled, so it
+    holds whatever ramps the stage's firmware makes (the AVR Marlin's differ from the
+    planner's trapezoid by up to 3 ms, 0.3 mm at 83 mm/s)."""
+    x0 = round(motion.x0 * motion.steps_per_mm) / motion.steps_per_mm
+    steps = np.asarray(sync_steps, dtype=np.float64) / n_average
+    return x0 + motion.direction * steps / motion.steps_per_mm
+
+
+def at_line_speed(x_mm: np.ndarray, v_mm_s: float, n_average: int, laser_period_s: float,
+                  tolerance: float = CRUISE_TOLERANCE) -> np.ndarray:
+    """Waveforms that moved at the line speed: the counted advance to the previous or the
+    next waveform is the planned one within `tolerance` (a waveform deep in a ramp moves
+    less on both sides)."""
+    want = v_mm_s * n_average * laser_period_s
+    ok = np.abs(np.abs(np.diff(x_mm)) / want - 1.0) <= tolerance
+    out = np.zeros(len(x_mm), bool)
+    out[1:] |= ok
+    out[:-1] |= ok
+    return out
 
 
 def place_shots(motion: LineMotion, first_edge_ticks: int, last_edge_ticks: int,

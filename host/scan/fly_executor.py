@@ -24,7 +24,7 @@ from dmdsm.marlin_patch import MachineLimits
 from ..links.sensor import CLOCK_SPACING_S, fit_clock
 from ..links.transport import LinkError
 from .executor import PointRanger, ScanStats, _surface
-from .fly import LineMotion, line_speed_mm_s, place_shots, ramp_mm
+from .fly import LineMotion, at_line_speed, counted_x, line_speed_mm_s, place_shots, ramp_mm
 from .plan import Point, ScanPlan
 from .scanfile import PHASES, ScanWriter
 
@@ -238,11 +238,13 @@ def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
     if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
         raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
                            f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
-    try:
-        x, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
-                                       tick_hz, ts, n_avg, period)
+    try:  # the model says which shots fell in the cruise; the counted steps say where
+        _, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
+                                   tick_hz, ts, n_avg, period)
     except ValueError as e:
         raise LineRejected(str(e)) from None
+    x = counted_x(motion, np.array([w.sync_steps for w in waves]), n_avg)
+    cruise &= at_line_speed(x, v, n_avg, period)
     lo = min(line.x_first, line.x_last) - plan.step_mm / 2
     hi = max(line.x_first, line.x_last) + plan.step_mm / 2
     keep = cruise & (x >= lo) & (x <= hi)

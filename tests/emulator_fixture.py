@@ -22,6 +22,7 @@ class Running:
     def stop(self) -> None:
         self.server.stop()
         self.thread.join(5)
+        self.sim.close()  # a stage firmware's simavr harness, if one runs
 
 
 @pytest.fixture

@@ -11,12 +11,14 @@ for p in gcc-avr avr-libc arduino-core-avr; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing="$missing $p"
 done
 [ -z "$missing" ] || { echo "build_debian.sh: install first: apt-get install$missing" >&2; exit 2; }
-# Marlin's Makefile expects the Arduino 1.8.x package layout; point it at Debian's core.
-SHIM=$(mktemp -d)
-trap 'rm -rf "$SHIM"' EXIT
+# Marlin's Makefile expects the Arduino 1.8.x package layout; point it at Debian's core. The
+# shim stays in the build folder: the dependency files of a build name paths through it, so a
+# second (incremental) build needs the same paths.
+mkdir -p "$OUT"
+SHIM=$(cd "$OUT" && pwd)/arduino-shim
 for d in arduino/avr avr; do
   mkdir -p "$SHIM/packages/arduino/hardware/$d"
-  ln -s /usr/share/arduino/hardware/arduino/avr "$SHIM/packages/arduino/hardware/$d/1.8.6"
+  ln -sfn /usr/share/arduino/hardware/arduino/avr "$SHIM/packages/arduino/hardware/$d/1.8.6"
 done
 # BOARD_TRIGORILLA_14 = 1137 (Marlin/src/core/boards.h). Debian ships no LiquidCrystal.cpp,
 # and its WString.cpp needs DECIMAL_DIG, which gcc-avr 5's float.h lacks in C++: the

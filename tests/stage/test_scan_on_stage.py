@@ -36,7 +36,7 @@ def test_step_then_fly_both_meet_the_paper_and_fly_places_every_waveform(emulato
     scan = read_scan(tmp_path / "db" / "scans" / "step.h5", waveforms=False)
     assert scan.entry["status"] == "complete" and scan.n_points == 2 * 21
     step_fits = _fits(scan)
-    for m, (mean, std) in PAPER.items():
+    for m, (mean, _) in PAPER.items():
         f = step_fits[m]
         assert f["n"] >= 36, (m, f)
         assert f["e_mean_mm"] <= mean + 3 * f["e_mean_se_mm"], (m, f)

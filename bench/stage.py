@@ -1,0 +1,75 @@
+"""Stage benchmark, the Marlin emulator and the real Marlin side by side (issue 20): moves/s
+through the stage client and the time one lost `ok` costs, both in real time (speed 1).
+
+usage: python bench/stage.py [--stage-firmware build/marlin/Marlin.elf] [--moves 200]
+Without --stage-firmware (or DMDSM_STAGE_FIRMWARE) only the emulator is measured; the
+firmware is built by `make check-marlin MARLIN=DIR` (docs/marlin.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import threading
+import time
+
+from dmdsm.host.links.stage import StageClient
+from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.runner import SimConfig, Simulation
+
+
+def measure(elf: str, moves: int, losses: int) -> dict:
+    """Moves/s for `moves` pipelined 0.2 mm moves and the median recovery time (s) of
+    `losses` lost oks, on one stage (the emulator if elf is empty)."""
+    sim = Simulation(SimConfig(seed=1, stage_firmware=elf))
+    server = PtyServer(sim, speed=1.0)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        st = StageClient(server.ports["stage"].name_for_host, timeout_s=0.5)
+        st.send("G92 X100 Y100 Z100 A0")
+        st.send("G91")
+        t0 = time.monotonic()
+        for i in range(moves):  # 0.2 mm there and back: the planner's queue stays full
+            st.send(f"G1 X{0.2 * (-1) ** i:.4f} F6000", wait=False)
+        st.drain(timeout_s=30)
+        st.wait()
+        rate = moves / (time.monotonic() - t0)
+        recover = []
+        for _ in range(losses):
+            with server.lock:
+                sim.stage.faults.lose_next_oks = 1
+            t0 = time.monotonic()
+            st.send("M114", wait=False)
+            st.drain()  # a numbered probe after 0.5 s of silence
+            recover.append(time.monotonic() - t0)
+        st.close()
+        return {"moves_per_s": rate, "recover_s": statistics.median(recover),
+                "recover_max_s": max(recover)}
+    finally:
+        server.stop()
+        thread.join(5)
+        sim.close()
+
+
+def main() -> None:
+    """Print the figures for the emulator and, if given, the real firmware."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stage-firmware", default=os.environ.get("DMDSM_STAGE_FIRMWARE", ""))
+    ap.add_argument("--moves", type=int, default=200)
+    ap.add_argument("--losses", type=int, default=5)
+    args = ap.parse_args()
+    stages = {"Marlin emulator": ""}
+    if args.stage_firmware:
+        stages["real Marlin (simavr)"] = args.stage_firmware
+    print(f"stage link, real time: {args.moves} pipelined 0.2 mm moves (reversing), "
+          f"{args.losses} lost oks (client timeout 0.5 s)")
+    for name, elf in stages.items():
+        r = measure(elf, args.moves, args.losses)
+        print(f"  {name:22s} {r['moves_per_s']:6.1f} moves/s   one lost ok costs "
+              f"{r['recover_s']:.3f} s (max {r['recover_max_s']:.3f} s)")
+
+
+if __name__ == "__main__":
+    main()

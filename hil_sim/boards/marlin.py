@@ -134,6 +134,9 @@ class MarlinEmulator(GcodeMixin):
             self.planner.update(self.now)
             for _ in range(64):  # bounded work per call
                 if self.blocking is not None and not self._blocking_done():
+                    # lines keep coming in while a command waits (the real Marlin's `ok` of
+                    # an M400 counts a line sent meanwhile in B: issue 20's differential run)
+                    self._read_serial(self.limits.bufsize - 1)
                     break
                 self._read_serial()
                 if not self.queue:
@@ -163,9 +166,11 @@ class MarlinEmulator(GcodeMixin):
             self.emergency.append(b)
 
     # ------------------------------------------------------------------ line protocol
-    def _read_serial(self) -> None:
-        """Move complete lines from the RX ring into free command slots (Marlin's get_serial)."""
-        while self.rx and len(self.queue) < self.limits.bufsize:
+    def _read_serial(self, slots: int | None = None) -> None:
+        """Move complete lines from the RX ring into free command slots (Marlin's get_serial);
+        `slots` of them (fewer while the command being run holds one)."""
+        slots = self.limits.bufsize if slots is None else slots
+        while self.rx and len(self.queue) < slots:
             b = self.rx.pop(0)
             if b not in (10, 13):
                 if len(self.line) < self.limits.max_cmd_size - 1:

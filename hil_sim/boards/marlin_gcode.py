@@ -36,6 +36,30 @@ def parse_words(cmd: str) -> tuple[str, dict[str, float | None]]:
     return code, {k: (float(v) if v else None) for k, v in rest}
 
 
+def marlin_float(v: float, digits: int = 2) -> str:
+    """A float as Marlin prints it on an AVR: 32-bit floats, rounded by adding half a unit
+    of the last digit, then digit by digit (-694.275 -> -694.28, 10.395 -> 10.39)."""
+    f32 = np.float32
+    x = f32(v)
+    sign = "-" if x < 0 else ""
+    x = f32(abs(x))
+    r = f32(0.5)
+    for _ in range(digits):
+        r = f32(r * f32(0.1))
+    x = f32(x + r)
+    whole = int(x)
+    rem = f32(x - f32(whole))
+    out = f"{sign}{whole}"
+    if digits:
+        out += "."
+        for _ in range(digits):
+            rem = f32(rem * f32(10.0))
+            d = min(int(rem), 9)
+            out += str(d)
+            rem = f32(rem - f32(d))
+    return out
+
+
 class GcodeMixin:
     """The commands of MarlinEmulator (see marlin.py for the line protocol)."""
 
@@ -72,7 +96,7 @@ class GcodeMixin:
             pos_v, counts_v = raw + self.offset, self._counts(raw)
         else:
             pos_v, counts_v = self.current, self._counts(self.current - self.offset)
-        pos = " ".join(f"{a}:{v:.2f}" for a, v in zip(self._axes(), pos_v))
+        pos = " ".join(f"{a}:{marlin_float(v)}" for a, v in zip(self._axes(), pos_v))
         counts = " ".join(f"{a}:{int(c)}" for a, c in zip(self._axes(), counts_v))
         return f"{pos} Count {counts}"
 
@@ -163,8 +187,11 @@ class GcodeMixin:
     def _M17(self, words: dict, n: int | None) -> None:
         pass
 
-    def _M18(self, words: dict, n: int | None) -> None:
-        pass  # motors off; positions are kept (the host re-homes if it cares)
+    def _M18(self, words: dict, n: int | None) -> bool:
+        # motors off once the moves are done (Marlin synchronises the planner first);
+        # positions are kept (the host re-homes if it cares)
+        self._block("sync", self.now, n)
+        return False
 
     _M84 = _M18
 
@@ -187,7 +214,10 @@ class GcodeMixin:
                 native = self.current - self.offset + self.native0
 
                 def fmt(axes: object, values: object, digits: int = 3) -> str:
-                    return "".join(f" {a}:{v:8.{digits}f}" for a, v in zip(axes, values))
+                    if digits == 0:  # counts: "X:-800 Y:0"
+                        return "".join(f" {a}:{int(v)}" for a, v in zip(axes, values))
+                    return "".join(f" {a}:{float(np.float32(v)): .{digits}f}"  # "Y: 0.000"
+                                   for a, v in zip(axes, values))
                 from_steps = self.planner.position() + self.native0
                 self.out += [
                     self._position_line(), "",

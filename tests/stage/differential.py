@@ -41,9 +41,10 @@ class Stage:
             self.sim.advance(STEP_S)
             self.buf += self.sim.read("stage")
 
-    def exchange(self, raw: str, timeout_s: float = 60.0) -> list[str]:
-        """Send raw bytes; the reply lines up to and including the first ok (busy lines
-        left out: how many depends on how long a move takes, not on the dialect)."""
+    def exchange(self, raw: str, n: int | None, timeout_s: float = 60.0) -> list[str]:
+        """Send raw bytes; the reply lines up to and including this line's ok (`ok N<n>`,
+        or a plain ok for an unnumbered line), busy lines left out: how many there are
+        depends on how long a move takes, not on the dialect."""
         self.sim.write("stage", raw.encode())
         out: list[str] = []
         end = self.sim.t + timeout_s
@@ -54,7 +55,9 @@ class Stage:
                 text = line.decode(errors="replace").strip()
                 if text != BUSY:
                     out.append(text)
-                if text.startswith("ok"):
+                mine = text.startswith(f"ok N{n} ") if n is not None else \
+                    text.startswith("ok") and not text.startswith("ok N")
+                if mine:
                     self.run(0.05)  # anything a command prints after its ok
                     return out
         return out + ["(no ok)"]
@@ -109,7 +112,7 @@ def main() -> int:
     args = ap.parse_args()
     stages = [Stage(""), Stage(args.elf)]
     for s in stages:
-        s.exchange(f"N0 M110 N0*{checksum('N0 M110 N0')}\n")
+        s.exchange(f"N0 M110 N0*{checksum('N0 M110 N0')}\n", 0)
     n, diffs, history = 0, 0, []
     try:
         for cmd, numbered in commands(random.Random(args.seed), args.lines):
@@ -119,14 +122,14 @@ def main() -> int:
                 raw = f"{body}*{checksum(body)}\n"
             else:
                 raw = cmd + "\n"
-            emu, real = (s.exchange(raw) for s in stages)
+            emu, real = (s.exchange(raw, n if numbered else None) for s in stages)
             history.append(raw.strip())
             if [normalise(x) for x in emu] != [normalise(x) for x in real]:
                 diffs += 1
                 print(f"--- after: {' | '.join(history[-4:-1])}\n>>> {raw.strip()}\n"
                       f"  emulator: {emu}\n  Marlin:   {real}")
                 for s in stages:  # both idle again before the next line
-                    s.exchange("M400\n")
+                    s.exchange("M400\n", None)
     finally:
         for s in stages:
             s.close()

@@ -154,8 +154,8 @@ bench: deps firmware
 
 ## ---------------------------------------------------------------- the real Marlin
 # make check-marlin MARLIN=DIR: patch and build that Marlin checkout (with the Chiron example
-# configuration copied in: docs/marlin.md) and run the stage conformance and fault suites
-# against the built firmware under simavr. Marlin's code stays in DIR; the build goes to
+# configuration copied in: docs/marlin.md), run the stage conformance, fault and scan suites
+# against the built firmware under simavr, then random G-code to it and to the emulator. Marlin's code stays in DIR; the build goes to
 # build/marlin. APPLY_FLAGS=--force patches a Marlin version other than the pinned one.
 MARLIN_BUILD := build/marlin
 check-marlin: deps avr
@@ -167,6 +167,7 @@ check-marlin: deps avr
 	sh firmware/marlin_patch/build_debian.sh $(MARLIN) $(CURDIR)/$(MARLIN_BUILD)
 	DMDSM_STAGE_FIRMWARE=$(CURDIR)/$(MARLIN_BUILD)/Marlin.elf $(PY) -m pytest -q -p no:cacheprovider \
 	  --durations=10 tests/stage
+	$(PY) tests/stage/differential.py $(MARLIN_BUILD)/Marlin.elf --lines 150
 
 ## ---------------------------------------------------------------- demo
 demo: deps

@@ -16,7 +16,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
-from .marlin_gcode import FIRMWARE_NAME, GcodeMixin
+from .marlin_gcode import FIRMWARE_NAME, QUICK_STOP_CLEAN_S, GcodeMixin
 from .motion import Planner
 
 
@@ -64,6 +64,7 @@ class MarlinEmulator(GcodeMixin):
         self.out: list[str] = []
         self.last_n = 0
         self.killed = False
+        self.cleaning_until = 0.0  # after a quick stop the planner drops new moves until then
         self.relative = False
         self.feed_mm_s = 50.0
         self.current = np.zeros(n)  # logical position of the last queued move (mm, deg)
@@ -161,6 +162,7 @@ class MarlinEmulator(GcodeMixin):
             elif word == "M410" and not self.killed:
                 self.planner.quick_stop(now)
                 self._sync_current_from_steppers()
+                self.cleaning_until = now + QUICK_STOP_CLEAN_S
             self.emergency.clear()
         elif len(self.emergency) < 16:
             self.emergency.append(b)

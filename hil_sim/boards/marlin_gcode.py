@@ -36,6 +36,11 @@ def parse_words(cmd: str) -> tuple[str, dict[str, float | None]]:
     return code, {k: (float(v) if v else None) for k, v in rest}
 
 
+QUICK_STOP_CLEAN_S = 1.0  # Marlin's planner drops moves for 1000 ms after a quick stop
+# (cleaning_buffer_counter), and M410 answers only then: its ok came 1.03 s after it on the
+# real Marlin in simavr (issue 20 saw ~1.2 s)
+
+
 def marlin_float(v: float, digits: int = 2) -> str:
     """A float as Marlin prints it on an AVR: 32-bit floats, rounded by adding half a unit
     of the last digit, then digit by digit (-694.275 -> -694.28, 10.395 -> 10.39)."""
@@ -124,6 +129,8 @@ class GcodeMixin:
         start = self.planner.to_steps(self.current - self.offset)
         end = self.planner.to_steps(target - self.offset)
         self.current = target
+        if self.now < self.cleaning_until:  # dropped, as the planner does after M410
+            return True
         if self.planner.free_blocks() <= 0:
             self._block("move", 0.0, n, args=(start, end, self.feed_mm_s))
             return False
@@ -248,9 +255,13 @@ class GcodeMixin:
         self._block("sync", self.now, n)
         return False
 
-    def _M410(self, words: dict, n: int | None) -> None:
-        self.planner.quick_stop(self.now)
-        self._sync_current_from_steppers()
+    def _M410(self, words: dict, n: int | None) -> bool:
+        if self.now >= self.cleaning_until:  # not already stopped by the emergency parser
+            self.planner.quick_stop(self.now)
+            self._sync_current_from_steppers()
+            self.cleaning_until = self.now + QUICK_STOP_CLEAN_S
+        self._block("sync", self.cleaning_until, n)  # the ok once the planner is clean
+        return False
 
     def _M999(self, words: dict, n: int | None) -> bool:
         self.rx.clear()

@@ -1,6 +1,7 @@
 """Marlin serial dialect conformance: hil_sim, or a real board with DMDSM_STAGE_PORT."""
 
 import re
+import time
 
 from dmdsm.marlin_patch import load_machine
 
@@ -95,6 +96,21 @@ def test_quick_stop_leaves_the_table_part_way(stage):
     stage.until_ok()
     report = stage.send("M114")[0]
     assert 0 < _pos(report)["A"] < 3600
+
+
+def test_an_unnumbered_m410_answers_once_the_planner_is_clean(stage):
+    stage.send("G92 A0")
+    stage.send(f"G1 A3600 F{LIMITS.max_feedrate[3] * 60:.0f}")
+    stage.lines(0.5 / stage.speed)
+    t0 = time.monotonic()
+    stage.raw("M410\n")
+    got = b""
+    while b"ok" not in got and time.monotonic() - t0 < 10:
+        time.sleep(0.002)  # polled finely: at 20x a 50 ms read timeout is a second
+        got += stage.port.read(stage.port.in_waiting)
+    waited = (time.monotonic() - t0) * stage.speed  # simulated seconds
+    assert 0.8 < waited < 1.6, waited  # Marlin drops new moves for 1 s, then answers
+    stage.send("M400")
 
 
 def test_m154_auto_reports_without_ok(stage):

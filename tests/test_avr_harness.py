@@ -160,3 +160,7 @@ def test_sim_cli_runs_a_stage_firmware_and_refuses_a_bad_one(tmp_path):
                         str(junk)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "cannot read" in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "demo", "--out", str(tmp_path / "o"),
+                        "--stage-firmware", str(junk)], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "cannot read" in r.stderr and "Traceback" not in r.stderr

@@ -43,13 +43,20 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--quick", action="store_true", help="smaller run for a first look")
     d.add_argument("--json", action="store_true",
                    help="progress to stderr, the summary as one JSON line on stdout")
+    d.add_argument("--stage-firmware", default="", metavar="ELF",
+                   help="run this stage firmware (Marlin.elf from `make check-marlin`) under "
+                        "simavr instead of the Marlin emulator (slower: at most 2x real time)")
     d.set_defaults(func=_demo)
     return ap
 
 
 def _demo(args: argparse.Namespace) -> int:
     from ..report.demo import run_demo
-    return run_demo(args.out, main, quick=args.quick, as_json=args.json)
+    try:
+        return run_demo(args.out, main, quick=args.quick, as_json=args.json,
+                        stage_firmware=args.stage_firmware)
+    except RuntimeError as e:  # the stage firmware could not be started (a bad ELF)
+        raise CliError(f"--stage-firmware: {e}") from None
 
 
 

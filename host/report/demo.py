@@ -38,14 +38,15 @@ class Demo:
     """The emulator on ptys plus a way to run `dmdsm` commands and collect their output."""
 
     def __init__(self, out: Path, quick: bool, speed: float,
-                 command: Callable[[list[str]], int]) -> None:
+                 command: Callable[[list[str]], int], stage_firmware: str = "") -> None:
         from dmdsm.sim.servers.pty_server import PtyServer
         from dmdsm.sim.servers.runner import SimConfig, Simulation
 
         self.out, self.quick, self.command = out, quick, command
         self.step_points_per_s: float | None = None  # the block's step-and-shoot rate
         self.rates: dict[str, float] = {}  # the household set's points/s per scan mode
-        self.sim = Simulation(SimConfig(scene="aluminium_block", seed=7))
+        self.sim = Simulation(SimConfig(scene="aluminium_block", seed=7,
+                                        stage_firmware=stage_firmware))
         self.server = PtyServer(self.sim, speed=speed, link_dir=str(out / "ports"))
         self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
         self.thread.start()
@@ -71,6 +72,7 @@ class Demo:
         """Stop the emulator."""
         self.server.stop()
         self.thread.join(5)
+        self.sim.close()
 
 
 def _truth(sim: object) -> dict[str, np.ndarray]:
@@ -344,16 +346,19 @@ def keep_previous_databases(out: Path) -> None:
 
 
 def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = False,
-             speed: float = 8.0, as_json: bool = False) -> int:
+             speed: float = 8.0, as_json: bool = False, stage_firmware: str = "") -> int:
     """Run every stage through `command` (the `dmdsm` entry point: argv -> exit code), write
     out/report.html, out/report.md and out/summary.json; 0 if all passed. as_json: progress
-    to stderr, the summary as one JSON line on stdout."""
+    to stderr, the summary as one JSON line on stdout. stage_firmware: a Marlin ELF run
+    under simavr as the stage board, at most 2x real time (simavr's pace on one core)."""
     say = sys.stderr if as_json else sys.stdout
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     keep_previous_databases(out)
     t_all = time.perf_counter()
-    d = Demo(out, quick, speed, command)
+    if stage_firmware:
+        speed = min(speed, 2.0)
+    d = Demo(out, quick, speed, command, stage_firmware)
     sections: list[Section] = []
     stages = [stage_ranging, stage_rig, stage_block, stage_household, stage_classify]
     try:

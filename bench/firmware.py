@@ -57,7 +57,7 @@ def wire_bytes(n_samples: int) -> int:
     """Wire size of one u16 waveform frame of n_samples (worst-case COBS)."""
     m = Message("waveform", shot_id=0, timestamp=0, trigger_phase=0, n_average=1,
                 pretrigger=0, sample_rate_div=1, sample_format=0, modality=0,
-                shots_dropped=0, adc_overruns=0, integrity_faults=0,
+                shots_dropped=0, adc_overruns=0, integrity_faults=0, sync_steps=0,
                 samples=np.full(n_samples, 0x0101, "<u2"))
     return len(encode_frame(m))
 

@@ -138,6 +138,16 @@ def test_lockstep_reset_drops_bytes_meanwhile_and_lost_oks_are_whole_lines():
         b.close()
 
 
+def test_a_stage_firmware_that_halts_is_one_clear_error():
+    b = lockstep_board()
+    try:
+        out, t = run(b, 0.0, 0.002)
+        with pytest.raises(AvrStageError, match="stage firmware stopped"):
+            run(b, t, 0.01, b"h")
+    finally:
+        b.close()
+
+
 def test_sim_cli_runs_a_stage_firmware_and_refuses_a_bad_one(tmp_path):
     import json
     import subprocess

@@ -1,7 +1,10 @@
 /* A tiny ATmega2560 program to test stage_harness without Marlin: UART0 at 250000 baud
  * echoes what it gets, except 'e' (prints E0/E1, the level of the X min endstop PE5) and
- * '+' / '-' (100 step pulses on PF0 with the direction on PF1, as RAMPS' X axis; prints S). */
+ * '+' / '-' (100 step pulses on PF0 with the direction on PF1, as RAMPS' X axis; prints S)
+ * and 'h' (halts: sleeps with interrupts off, as a crashed firmware may). */
 #include <avr/io.h>
+#include <avr/interrupt.h>
+#include <avr/sleep.h>
 #include <util/delay.h>
 
 static void put(char c)
@@ -45,6 +48,10 @@ int main(void)
 			}
 			put('S');
 			put('\n');
+		} else if (c == 'h') {
+			cli();
+			sleep_enable();
+			sleep_cpu();
 		} else {
 			put(c);
 		}

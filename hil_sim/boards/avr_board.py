@@ -115,7 +115,7 @@ class AvrStageBoard:
             elif kind == "d ":
                 _, cycle, state = reply.split()
                 self.cycle = int(cycle)
-                if int(state) in (7, 8):  # cpu_Done, cpu_Crashed (sim_avr.h)
+                if int(state) in (6, 7):  # cpu_Done, cpu_Crashed (enum in simavr/sim_avr.h)
                     raise AvrStageError(f"the stage firmware stopped (simavr state {state}) "
                                         f"at {self.cycle / F_CPU_HZ:.3f} s")
                 return out

@@ -12,7 +12,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
-from .avr_stage import HARNESS, AvrStageError, AxisPins, chiron_axes
+from .avr_stage import HARNESS, AvrStageError, AxisPins, chiron_axes, close_pipes, quit_harness
 from .marlin import StageFaults
 
 F_CPU_HZ = 16_000_000  # the Trigorilla's crystal
@@ -187,16 +187,5 @@ class AvrStageBoard:
 
     def close(self) -> None:
         """Stop the harness."""
-        if self.proc.poll() is None:
-            try:
-                self.proc.stdin.write("quit\n")
-                self.proc.stdin.flush()
-                self.proc.wait(5)
-            except (OSError, subprocess.TimeoutExpired):
-                self.proc.kill()
-                self.proc.wait(5)
-        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
-            try:
-                f.close()
-            except OSError:  # a write to a harness that ended is still buffered
-                pass
+        quit_harness(self.proc)
+        close_pipes(self.proc)

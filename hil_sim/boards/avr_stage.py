@@ -22,6 +22,28 @@ class AvrStageError(RuntimeError):
     """The harness or the firmware could not be started; str() says what to do."""
 
 
+def quit_harness(proc: subprocess.Popen) -> None:
+    """Ask a running stage_harness to quit (stdin "quit"); kill it if it will not."""
+    if proc.poll() is None:
+        try:
+            proc.stdin.write("quit\n")
+            proc.stdin.flush()
+            proc.wait(5)
+        except (OSError, subprocess.TimeoutExpired):
+            proc.kill()
+            proc.wait(5)
+
+
+def close_pipes(proc: subprocess.Popen) -> None:
+    """Close the harness's pipes (a write still buffered to one that ended is dropped)."""
+    for f in (proc.stdin, proc.stdout, proc.stderr):
+        if f is not None:
+            try:
+                f.close()
+            except OSError:
+                pass
+
+
 @dataclass(frozen=True)
 class AxisPins:
     """One stepper axis: pins as port letter + bit ('F0'), endstop '-' if none; dir_inverted
@@ -98,19 +120,14 @@ class AvrStage:
             if not line:  # the harness ended before its pty was up
                 err = self.proc.stderr.read().strip().splitlines()
                 self.proc.wait(5)
-                self._close_pipes()
+                close_pipes(self.proc)
                 raise AvrStageError((err or ["stage_harness ended at start"])[-1])
             if line.startswith("pty "):
                 return line.split(None, 1)[1].strip()
         self.proc.kill()
         self.proc.wait(5)
-        self._close_pipes()
+        close_pipes(self.proc)
         raise AvrStageError(f"stage_harness gave no pty within {timeout_s:g} s")
-
-    def _close_pipes(self) -> None:
-        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
-            if f is not None:
-                f.close()
 
     def _read(self) -> None:
         for line in self.proc.stdout:
@@ -131,13 +148,6 @@ class AvrStage:
 
     def close(self) -> None:
         """Stop the firmware and the harness."""
-        if self.proc.poll() is None:
-            try:
-                self.proc.stdin.write("quit\n")
-                self.proc.stdin.flush()
-                self.proc.wait(5)
-            except (OSError, subprocess.TimeoutExpired):
-                self.proc.kill()
-                self.proc.wait(5)
+        quit_harness(self.proc)
         self.reader.join(2)
-        self._close_pipes()
+        close_pipes(self.proc)

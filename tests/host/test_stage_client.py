@@ -173,22 +173,6 @@ def test_an_over_long_line_is_refused_before_it_is_sent(emulator):
     st.close()
 
 
-def test_an_extra_plain_ok_acknowledges_no_numbered_line(emulator):
-    emu = emulator(speed=1.0)
-    st = StageClient(emu.stage)
-    n = st.next_n
-    st.send("G4 P400", wait=False)  # holds its ok for 0.4 s
-    _until(lambda: emu.sim.stage.executed[-1] == (n, "G4 P400"))
-    emu.sim.stage.out.append("ok")  # as Marlin adds after an error in a burst
-    time.sleep(0.1)
-    for line in st._read_lines():
-        st._handle(line)
-    assert n in st.unacked
-    st.drain(timeout_s=5)
-    assert n not in st.unacked
-    st.close()
-
-
 def test_connect_survives_the_board_resetting_when_the_port_opens(emulator):
     emu = emulator(speed=1.0)
     marlin = emu.sim.stage

@@ -12,18 +12,12 @@ import random
 import re
 import sys
 
+from stage_link import checksum  # beside this script
+
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 BUSY = "echo:busy: processing"
 STEP_S = 0.005
-
-
-def checksum(line: str) -> int:
-    """Marlin's XOR checksum."""
-    c = 0
-    for b in line.encode():
-        c ^= b
-    return c
 
 
 class Stage:

@@ -58,9 +58,14 @@ class Link:
         raise TimeoutError(f"no response to {name} seq={seq} within {timeout} s")
 
     def waveforms(self, n: int, timeout: float = 10.0) -> list[Message]:
-        """Collect n waveform messages (including any already received)."""
+        """Collect n waveform messages (including any already received), waiting until
+        `timeout` seconds pass without a new one: a slow but steady target (a rehost on a
+        loaded machine) is not cut short, a stalled one is."""
         end = time.monotonic() + timeout
-        while len([m for m in self.unsolicited if m.name == "waveform"]) < n:
+        count = 0
+        while (now := len([m for m in self.unsolicited if m.name == "waveform"])) < n:
+            if now > count:
+                count, end = now, time.monotonic() + timeout
             if time.monotonic() > end:
                 break
             self.unsolicited += [m for m in self.pump() if isinstance(m, Message)]

@@ -138,7 +138,7 @@ def test_every_lost_shot_is_reported(dut):
     configure(dut, n_average=1, n_samples=4096)  # 1 kHz shots outrun the link: drops
     before = dut.request("get_status")
     dut.request("arm", n_shots=40)
-    waves = dut.waveforms(40, timeout=8.0)
+    waves = dut.waveforms(40, timeout=3.0)
     ids = [w.shot_id for w in waves]
     assert ids == sorted(ids) and ids[-1] <= 39
     gaps = (ids[-1] + 1) - len(ids)

@@ -131,9 +131,16 @@ fuzz: build
 	$(HOSTBUILD)/fuzz_decoder -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -print_final_stats=1 \
 	  build/fuzz_corpus 2>&1 | tail -n 4
 
-test: deps build gen-check lint test-c fuzz
+# aeon's numba kernels (BOSS, MiniRocket) compile once, beside the builds and lint, into
+# numba's on-disk cache: cold they take ~3 min of CPU, and each test worker and the demo
+# would otherwise compile them again at the same time (dmdsm.host.classify.warm).
+test: deps
+	@mkdir -p build; $(PY) -m dmdsm.host.classify.warm > build/warm.log 2>&1 & warm=$$!; \
+	$(MAKE) --no-print-directory build gen-check lint test-c fuzz || { kill $$warm; exit 1; }; \
+	wait $$warm || { cat build/warm.log; echo "aeon warm-up failed" >&2; exit 1; }; \
+	cat build/warm.log
 	@# the full demo (mostly waiting on the real-time emulator) runs beside the other tests
-	@mkdir -p build; rc=0; drc=0; \
+	@rc=0; drc=0; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider tests/demo \
 	  > build/test-demo.log 2>&1 & demo=$$!; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 4 --dist loadfile \

@@ -79,9 +79,10 @@ firmware: $(STAMPS)/apt
 	$(MAKE) -C firmware/stm32 BOARD=pc
 
 # the stage board's firmware under simavr (docs/marlin.md), and an AVR program to test it with
-$(AVRBUILD)/stage_harness: hil_sim/avr/stage_harness.c | $(STAMPS)/apt
+HARNESS_C := hil_sim/avr/stage_harness.c hil_sim/avr/harness_pty.c hil_sim/avr/harness_lockstep.c
+$(AVRBUILD)/stage_harness: $(HARNESS_C) hil_sim/avr/harness.h | $(STAMPS)/apt
 	@mkdir -p $(AVRBUILD)
-	gcc -std=gnu11 -Wall -Wextra -Werror -O2 $< $$(pkg-config --cflags --libs simavr) -lutil -o $@
+	gcc -std=gnu11 -Wall -Wextra -Werror -O2 $(HARNESS_C) $$(pkg-config --cflags --libs simavr) -lutil -o $@
 
 $(AVRBUILD)/uart_pins_test.elf: hil_sim/avr/uart_pins_test.c | $(STAMPS)/apt
 	@mkdir -p $(AVRBUILD)
@@ -119,7 +120,7 @@ lint: deps
 	  --std=c11 --inline-suppr --suppress=missingIncludeSystem -Iprotocol/c -Ifirmware/stm32/core \
 	  -Ifirmware/stm32/board/common -Ifirmware/stm32/board/nucleo_h743zi firmware/stm32/board
 	cppcheck --quiet --error-exitcode=1 --enable=warning,style,performance,portability \
-	  --std=c11 --suppress=missingIncludeSystem hil_sim/avr/stage_harness.c
+	  --std=c11 --suppress=missingIncludeSystem -Ihil_sim/avr $(HARNESS_C)
 
 test-c: build
 	ASAN_OPTIONS=detect_leaks=1 $(HOSTBUILD)/test_frame protocol/vectors/golden.txt

@@ -20,49 +20,31 @@
  */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <fcntl.h>
-#include <pty.h>
-#include <signal.h>
-#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <termios.h>
-#include <time.h>
 #include <unistd.h>
 
 #include <simavr/avr_extint.h>
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
-#include <simavr/sim_avr.h>
 #include <simavr/sim_elf.h>
 
-#define MAX_AXES 6
+#include "harness.h"
 
-typedef struct axis_t {
-	char name[8];
-	char step_port, dir_port, end_port;
-	int step_bit, dir_bit, end_bit;
-	long trigger;
-	long count;
-	long long *edges;  /* lock-step: this run's steps, signed cycle + 1 */
-	size_t n_edges, cap_edges;
-	int dir_level, step_level, end_level, dir_inverted, end_inverted;
-	avr_irq_t *end_irq;
-} axis_t;
-
-static axis_t axes[MAX_AXES];
-static int n_axes;
-static avr_t *avr;
-static int pty_master = -1;
-static int uart_xon = 1;
-static int counts_changed;
-static volatile sig_atomic_t stop_requested;
+axis_t axes[MAX_AXES];
+int n_axes;
+avr_t *avr;
+int pty_master = -1;
+int uart_xon = 1;
+int counts_changed;
+volatile sig_atomic_t stop_requested;
 static int lockstep;
-static uint8_t *uart_out;  /* lock-step: UART0 output since the last run */
-static size_t n_out, cap_out;
+uint8_t *uart_out;
+size_t n_out;
+static size_t cap_out;
 
-static void *grow(void *buf, size_t *cap, size_t need, size_t size)
+void *grow(void *buf, size_t *cap, size_t need, size_t size)
 {
 	if (need <= *cap)
 		return buf;
@@ -195,46 +177,9 @@ static void on_signal(int sig)
 	stop_requested = 1;
 }
 
-static double wall_s(void)
-{
-	struct timespec ts;
-	clock_gettime(CLOCK_MONOTONIC, &ts);
-	return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static void report(double t)
-{
-	printf("t %.6f", t);
-	for (int i = 0; i < n_axes; i++)
-		printf(" %ld", axes[i].count);
-	printf("\n");
-	fflush(stdout);
-}
-
-static int open_pty(const char *link)
-{
-	int slave;
-	char name[256];
-	struct termios tio;
-	if (openpty(&pty_master, &slave, name, NULL, NULL) < 0)
-		return -1;
-	cfmakeraw(&tio);
-	tcsetattr(slave, TCSANOW, &tio);
-	/* keep the slave open: a host closing the port must not hang the master up */
-	fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
-	if (link) {
-		unlink(link);
-		if (symlink(name, link) < 0)
-			return -1;
-	}
-	printf("pty %s\n", name);
-	fflush(stdout);
-	return 0;
-}
-
 /* settings a reset may undo: UART0 neither sleeps on polls nor echoes to stdio, and no
  * strict level interrupts */
-static void configure(void)
+void configure(void)
 {
 	uint32_t flags = 0;
 	avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
@@ -274,78 +219,6 @@ static void wire(void)
 			drive_endstop(a);
 		}
 	}
-}
-
-static int hexval(int c)
-{
-	return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 :
-	       c >= 'A' && c <= 'F' ? c - 'A' + 10 : -1;
-}
-
-/* the caller owns time: commands on stdin, results on stdout (see the top of the file) */
-static int run_lockstep(void)
-{
-	avr_irq_t *uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-	uint8_t *inq = NULL;
-	size_t in_len = 0, in_pos = 0, in_cap = 0, line_cap = 0;
-	char *line = NULL;
-	int state = cpu_Running;
-	while (!stop_requested && getline(&line, &line_cap, stdin) > 0) {
-		if (!strncmp(line, "quit", 4))
-			break;
-		if (line[0] == 'w' && line[1] == ' ') {
-			size_t n = strcspn(line + 2, "\r\n") / 2;
-			if (in_pos == in_len)
-				in_pos = in_len = 0;
-			inq = grow(inq, &in_cap, in_len + n, 1);
-			for (size_t i = 0; i < n; i++) {
-				int hi = hexval(line[2 + 2 * i]), lo = hexval(line[3 + 2 * i]);
-				if (hi >= 0 && lo >= 0)
-					inq[in_len++] = (uint8_t)(hi << 4 | lo);
-			}
-			continue;
-		}
-		if (!strncmp(line, "reset", 5)) {
-			avr_reset(avr);
-			configure();
-			in_pos = in_len = 0;  /* the bootloader does not keep what came meanwhile */
-			uart_xon = 1;
-			state = cpu_Running;
-		} else if (line[0] == 'r' && line[1] == ' ') {
-			unsigned long long target = strtoull(line + 2, NULL, 10);
-			while (avr->cycle < target && state != cpu_Done && state != cpu_Crashed) {
-				state = avr_run(avr);
-				while (in_pos < in_len && uart_xon)
-					avr_raise_irq(uart_in, inq[in_pos++]);
-			}
-			if (n_out) {
-				printf("u ");
-				for (size_t i = 0; i < n_out; i++)
-					printf("%02x", uart_out[i]);
-				printf("\n");
-				n_out = 0;
-			}
-			for (int i = 0; i < n_axes; i++) {
-				axis_t *a = &axes[i];
-				if (!a->n_edges)
-					continue;
-				printf("e %d", i);
-				for (size_t k = 0; k < a->n_edges; k++)
-					printf(" %lld", a->edges[k]);
-				printf("\n");
-				a->n_edges = 0;
-			}
-		} else {
-			fprintf(stderr, "stage_harness: unknown command %s", line);
-			continue;
-		}
-		printf("d %llu %d\n", (unsigned long long)avr->cycle, state);
-		fflush(stdout);
-	}
-	free(line);
-	free(inq);
-	avr_terminate(avr);
-	return 0;
 }
 
 int main(int argc, char **argv)
@@ -402,53 +275,6 @@ int main(int argc, char **argv)
 	avr_load_firmware(avr, &fw);
 	signal(SIGINT, on_signal);
 	signal(SIGTERM, on_signal);
-	if (lockstep) {
-		wire();
-		return run_lockstep();
-	}
-	if (open_pty(link) < 0) {
-		perror("stage_harness: pty");
-		return 2;
-	}
-	wire();
-	fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
-
-	double wall0 = wall_s(), last_report = -1.0;
-	int state = cpu_Running;
-	avr_irq_t *uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-	uint8_t inbuf[256];
-	size_t in_len = 0, in_pos = 0;
-	char cmd[64];
-	while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
-		for (int k = 0; k < 2000 && state != cpu_Done && state != cpu_Crashed; k++)
-			state = avr_run(avr);
-		double t = (double)avr->cycle / avr->frequency;
-		if (in_pos == in_len && pty_master >= 0) {  /* bytes from the host */
-			ssize_t got = read(pty_master, inbuf, sizeof(inbuf));
-			in_len = got > 0 ? (size_t)got : 0;
-			in_pos = 0;
-		}
-		while (in_pos < in_len && uart_xon)
-			avr_raise_irq(uart_in, inbuf[in_pos++]);
-		if ((counts_changed && t - last_report >= 1e-3) || t - last_report >= 0.05) {
-			report(t);
-			last_report = t;
-			counts_changed = 0;
-		}
-		ssize_t c = read(0, cmd, sizeof(cmd) - 1);
-		if (c > 0 && !strncmp(cmd, "quit", 4))
-			break;
-		if (speed > 0) {  /* no faster than `speed` x real time */
-			double ahead = t / speed - (wall_s() - wall0);
-			if (ahead > 0.002)
-				usleep((useconds_t)(ahead * 1e6));
-		}
-	}
-	report((double)avr->cycle / avr->frequency);
-	printf("exit %d\n", state);
-	fflush(stdout);
-	if (link)
-		unlink(link);
-	avr_terminate(avr);
-	return 0;
+	wire();  /* before any cycle runs, so no step or byte is missed */
+	return lockstep ? run_lockstep() : run_pty(link, speed);
 }

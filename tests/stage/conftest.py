@@ -4,6 +4,7 @@ emulator, each on a pty."""
 
 import os
 import threading
+import time
 
 import pytest
 from stage_link import StageLink
@@ -19,7 +20,7 @@ def stage_url():
     """Port of the stage board; starts the emulator on a pty when none is given."""
     url = os.environ.get("DMDSM_STAGE_PORT")
     if url:
-        yield url, 1.0
+        yield url, 1.0, time.monotonic
         return
     elf = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
     speed = 1.0 if elf else SPEED  # simavr runs Marlin at about twice real time at most
@@ -27,7 +28,7 @@ def stage_url():
     server = PtyServer(sim, speed=speed)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    yield server.ports["stage"].name_for_host, speed
+    yield server.ports["stage"].name_for_host, speed, lambda: sim.t  # simulated seconds
     server.stop()
     thread.join(5)
     sim.close()
@@ -35,10 +36,12 @@ def stage_url():
 
 @pytest.fixture
 def stage(stage_url):
-    """An open link with line numbers reset."""
-    url, speed = stage_url
+    """An open link with line numbers reset; link.clock() is the stage's time in seconds
+    (simulated time for the emulator, which a loaded machine may run behind the wall clock)."""
+    url, speed, clock = stage_url
     link = StageLink(url)
     link.speed = speed
+    link.clock = clock
     link.lines(0.2)  # boot banner or leftovers
     link.reset_numbers()
     yield link

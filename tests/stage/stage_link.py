@@ -22,6 +22,8 @@ class StageLink:
         self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05)
         self.n = 0
         self.buf = b""
+        self.speed = 1.0             # stage seconds per wall second (the emulator runs faster)
+        self.clock = time.monotonic  # the stage's time in seconds (the fixture sets it)
 
     def close(self) -> None:
         """Close the port."""

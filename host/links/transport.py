@@ -36,6 +36,10 @@ def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialB
         if "exclusively lock" in text or err == errno.EBUSY or "busy" in text:
             raise LinkError(f"{name} is in use by another program (OctoPrint, a terminal, "
                             f"another dmdsm): close it and retry") from None
+        if err == errno.ENOTTY or "inappropriate ioctl" in text:
+            raise LinkError(f"{name} is a device but not a serial port (it takes no line "
+                            f"settings): give the board's port (e.g. /dev/ttyACM0; "
+                            f"`dmdsm ports` lists them)") from None
         if "connection refused" in text:
             raise LinkError(f"nothing listens at {name}: is the emulator or QEMU "
                             f"running?") from None

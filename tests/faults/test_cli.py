@@ -68,3 +68,11 @@ def test_a_file_or_folder_given_as_a_port_is_named(tmp_path, capsys, kind):
     err = capsys.readouterr().err
     assert f"is a {'plain file' if kind == 'file' else 'folder'}, not a serial port" in err
     assert "Inappropriate ioctl" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_device_that_is_not_a_serial_port_is_named(capsys):
+    """/dev/null is a character device, as a port is, but it takes no line settings."""
+    assert main(["info", "--sensor", "/dev/null"]) == 2
+    err = capsys.readouterr().err
+    assert "/dev/null is a device but not a serial port" in err and "dmdsm ports" in err
+    assert "Inappropriate ioctl" not in err and len(err.strip().splitlines()) == 1

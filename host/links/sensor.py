@@ -9,6 +9,7 @@ the device's counters account for every lost shot. Nothing that failed its CRC i
 from __future__ import annotations
 
 import logging
+import os
 import random
 import threading
 import time
@@ -29,6 +30,36 @@ SPEC = load_spec()
 ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
 BOOT_FAILURES = ("clock_failure", "power_failure", "adc_failure")  # arm NAKs: docs/firmware.md
 CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
+
+
+def config_range_of(message: str, name: str) -> tuple[int, int]:
+    """The values the spec allows for field `name` of `message` (its min/max, else its
+    type's)."""
+    f = next(f for f in SPEC.by_name[message].fields if f.name == name)
+    lo, hi = f.int_range() or (0, 0)
+    return (f.min if f.min is not None else lo), (f.max if f.max is not None else hi)
+
+
+def config_range(name: str) -> tuple[int, int]:
+    """The values the spec allows for set_config field `name`."""
+    return config_range_of("set_config", name)
+
+
+def check_shots_fit(n_shots: int, n_samples: int, itemsize: int) -> None:
+    """Refuse, before arming, an acquisition whose shots (kept in memory until written)
+    would take more than half of the memory free now, or more than arm can count."""
+    hi = config_range_of("arm", "n_shots")[1]
+    if not 0 < n_shots <= hi:
+        raise SensorError(f"{n_shots} shots: give 1..{hi} per acquisition")
+    need = n_shots * n_samples * itemsize * 1.25  # samples, and the rows kept per shot
+    try:
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError):  # not reported here: no bound but the type's
+        return
+    if need > free / 2:
+        raise SensorError(f"{n_shots} shots of {n_samples} samples need {need / 2**30:.1f} "
+                          f"GiB of memory and {free / 2**30:.1f} GiB is free: record at most "
+                          f"{int(free / 2 / (n_samples * itemsize * 1.25))} shots per file")
 
 
 class AcquisitionInterrupted(KeyboardInterrupt):
@@ -265,7 +296,9 @@ class SensorClient:
             what = ""
             if err == "out_of_range" and name == "set_config" and 0 < r.detail <= len(
                     CONFIG_FIELDS):
-                what = f": {CONFIG_FIELDS[r.detail - 1]} is outside its range"
+                field = CONFIG_FIELDS[r.detail - 1]
+                lo, hi = config_range(field)
+                what = f": {field} is outside {lo}..{hi}, or does not suit the other settings"
             elif err in BOOT_FAILURES:  # the board cannot acquire since its start-up
                 what = (f": {SPEC.enum_docs['error'][err]}; its boot log and `dmdsm info` "
                         f"(board name) say which step failed")
@@ -303,6 +336,10 @@ class SensorClient:
         if unknown:
             raise SensorError(f"unknown setting {sorted(unknown)[0]}; known: "
                               f"{', '.join(CONFIG_FIELDS)}")
+        for k, v in cfg.items():  # checked here: a value the wire cannot carry never goes out
+            lo, hi = config_range(k)
+            if not lo <= v <= hi:
+                raise SensorError(f"{k} {v} is outside {lo}..{hi}")
         self._expect_ack(self.request("set_config", **new), "set_config")
         self._config = dict(new)
         return new
@@ -321,6 +358,7 @@ class SensorClient:
         cfg = self._config or dict(self.request("get_config").fields)
         self._config = cfg
         dtype = np.dtype(SAMPLE_DTYPES[cfg["sample_format"]])
+        check_shots_fit(n_shots, cfg["n_samples"], dtype.itemsize)
         shots = Shots(np.zeros((n_shots, cfg["n_samples"]), dtype), np.zeros(n_shots, bool),
                       np.zeros(n_shots, np.uint64), np.zeros(n_shots, np.uint16),
                       np.zeros(n_shots, np.uint16), dict(cfg))

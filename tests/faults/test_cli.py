@@ -76,3 +76,17 @@ def test_a_device_that_is_not_a_serial_port_is_named(capsys):
     err = capsys.readouterr().err
     assert "/dev/null is a device but not a serial port" in err and "dmdsm ports" in err
     assert "Inappropriate ioctl" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("flag, value, limits", [("--samples", "999999", "16..8192"),
+                                                 ("--samples", "8", "16..8192"),
+                                                 ("--average", "100000", "1..4096")])
+def test_acquire_settings_outside_the_spec_are_named_before_connecting(tmp_path, capsys, flag,
+                                                                       value, limits):
+    """Checked against the protocol spec's range before the port is opened (it may not
+    exist): a u16 overflow once ended in a traceback."""
+    rc = main(["acquire", "--sensor", str(tmp_path / "ttyACM9"), "--shots", "3", flag, value,
+               "-o", str(tmp_path / "a.h5")])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"{flag} {value} is outside {limits}" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "a.h5").exists()

@@ -5,7 +5,9 @@ import pytest
 
 from dmdsm.host.links.sensor import SensorClient, SensorError
 from dmdsm.host.links.transport import LinkError
-from dmdsm.protocol import FrameDecoder
+from dmdsm.protocol import FrameDecoder, load_spec
+
+SPEC = load_spec()
 
 
 def test_10000_shots_through_a_noisy_link_every_shot_accounted(emulator):
@@ -29,10 +31,24 @@ def test_10000_shots_through_a_noisy_link_every_shot_accounted(emulator):
 
 def test_configure_naks_name_the_field(emulator):
     sc = SensorClient(emulator().sensor)
-    with pytest.raises(SensorError, match="refused set_config .*pretrigger is outside"):
+    with pytest.raises(SensorError, match="refused set_config .*pretrigger is outside 0..8191"):
         sc.configure(n_samples=256, pretrigger=300)
     with pytest.raises(SensorError, match="unknown setting n_smples"):
         sc.configure(n_smples=256)
+    # a value the wire cannot carry is refused with the spec's range, before it is sent
+    with pytest.raises(SensorError, match=r"^n_samples 999999 is outside 16\.\.8192$"):
+        sc.configure(n_samples=999_999)
+    with pytest.raises(SensorError, match=r"^n_average 0 is outside 1\.\.4096$"):
+        sc.configure(n_average=0)
+    assert sc.configure(n_samples=256)["n_samples"] == 256  # the board still answers
+    # shots are kept in memory until written: an acquisition that cannot fit is refused
+    # before the board is armed, and says how many would
+    with pytest.raises(SensorError, match=r"GiB of memory .* record at most \d+ shots"):
+        sc.acquire(10**9)
+    with pytest.raises(SensorError, match=r"give 1\.\.4294967295"):
+        sc.acquire(2**32)
+    assert sc.status()["state"] == SPEC.enums["state"]["idle"]
+    assert sc.acquire(2).received.all()
     sc.close()
 
 

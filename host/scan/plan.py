@@ -169,6 +169,13 @@ def load_plan(path: Path, **overrides: object) -> ScanPlan:
     if "levels_mm" not in flat:
         raise PlanError(f"{path}: [scan] levels_mm is required (the sensor heights above the "
                         f"table, mm, e.g. levels_mm = [12.0, 24.0])")
+    for key, unit, example in (("levels_mm", "mm", "[12.0, 24.0]"),
+                               ("angles_deg", "deg", "[0.0, 90.0, 180.0, 270.0]")):
+        value = flat.get(key, [])
+        if not isinstance(value, list) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+            raise PlanError(f"{path}: [scan] {key} must be a list of numbers in {unit}, "
+                            f"e.g. {key} = {example} (got {value!r:.40})")
     try:
         plan = ScanPlan(**flat)
         plan.levels_mm = [float(x) for x in plan.levels_mm]

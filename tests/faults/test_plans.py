@@ -30,6 +30,10 @@ def plan_text(**scan: str) -> str:
     ({"half_width_mm": "nan"}, "must be positive"),
     ({"levels_mm": "[inf]"}, "levels_mm[0] must be a finite number"),
     ({"levels_mm": None}, "levels_mm is required"),
+    ({"levels_mm": '"abc"'}, "levels_mm must be a list of numbers in mm"),
+    ({"levels_mm": "20.0"}, "levels_mm must be a list of numbers in mm, e.g. levels_mm = [12"),
+    ({"angles_deg": '[0, "90"]'}, "angles_deg must be a list of numbers in deg"),
+    ({"angles_deg": "[true]"}, "angles_deg must be a list of numbers in deg"),
 ])
 def test_a_bad_plan_is_one_line_at_once(tmp_path, change, words):
     path = tmp_path / "plan.toml"

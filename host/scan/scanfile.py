@@ -336,6 +336,8 @@ def read_scan(path: Path, waveforms: bool = True) -> ScanData:
     try:
         with f:
             return _read(f, path, waveforms)
+    except ScanFileError:
+        raise
     except (KeyError, ValueError, TypeError, OSError, RuntimeError, IndexError) as e:
         raise ScanFileError(f"{path} is damaged or not a complete dmdsm scan file "
                             f"({type(e).__name__}: {one_line(str(e))})") from None
@@ -346,6 +348,9 @@ MAX_POINTS_READ = 5_000_000  # a file declaring more is refused, not read into m
 
 def _read(f: object, path: Path, waveforms: bool) -> ScanData:
     """The checked contents of an open scan file."""
+    if f.attrs.get("format_name") == "dmdsm-shots":
+        raise ScanFileError(f"{path} is a recording from `dmdsm acquire`, not a scan: give a "
+                            f"file from `dmdsm scan` (DB/scans/*.h5)")
     if f.attrs.get("format_name") != "dmdsm-scan":
         raise ScanFileError(f"{path} is not a dmdsm scan file (no format_name "
                             f"'dmdsm-scan')")

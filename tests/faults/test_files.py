@@ -127,3 +127,14 @@ def test_a_damaged_catalogue_is_one_line_and_rebuild_replaces_it(good, tmp_path,
     assert r.returncode == 0, r.stderr
     rows = list_scans(copy)
     assert [x["status"] for x in rows] == ["complete"]
+
+
+def test_a_recording_from_acquire_given_as_a_scan_is_named(tmp_path):
+    """The two HDF5 files a user makes look alike; the error says which one was given."""
+    rec = tmp_path / "shots.h5"
+    with h5py.File(rec, "w") as f:
+        f.attrs.update(format_name="dmdsm-shots", format_version="1")
+        f["/entry/data/waveforms"] = np.zeros((2, 16), np.uint16)
+    r, took = run("reconstruct", str(rec))
+    one_line_error(r, took)
+    assert "is a recording from `dmdsm acquire`, not a scan" in r.stderr

@@ -59,6 +59,7 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
     from .errors import CliError
 
     check_output(args.output)  # before the stage moves
+    _check_procedure(args)
     cfg = load_config(args.config)
     sc = SensorClient(resolve_port("sensor", args.sensor, cfg))
     try:
@@ -79,6 +80,41 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
             print(f"{m.upper()}: {text}")
         print(f"saved {args.output}")
     return 0
+
+
+def _check_procedure(args: argparse.Namespace) -> None:
+    """Refuse, before either board is touched, numbers the procedure cannot use and any
+    position it would visit outside the machine envelope."""
+    from dmdsm.marlin_patch import load_machine
+
+    from ..links.safety import UnsafeMove, check_move
+    from ..links.sensor import config_range
+    from ..ranging.procedure import positions
+    from .errors import CliError
+
+    numbers = {"-x": args.x, "-y": args.y, "-z": args.z, "--step": args.step,
+               "--start-distance": args.start_distance, "--temperature": args.temperature}
+    for flag, value in numbers.items():
+        if not np.isfinite(value):
+            raise CliError(f"{flag} must be a finite number (got {value})")
+    if args.start_distance <= 0 or args.step <= 0:
+        raise CliError("--start-distance and --step must be positive (mm)")
+    fewest = 1 if args.fixed_c else 2  # t0 and c need two depths at least
+    if not fewest <= args.steps <= 1000 or not 1 <= args.lateral <= 100 or args.shots < 1:
+        raise CliError(f"--steps must be {fewest}..1000, --lateral 1..100 and --shots at "
+                       f"least 1")
+    lo, hi = config_range("n_average")
+    if not lo <= args.average <= hi:
+        raise CliError(f"--average {args.average} is outside {lo}..{hi}")
+    where = positions({"X": args.x, "Y": args.y, "Z": args.z}, args.steps, args.step,
+                      args.lateral)
+    limits = load_machine()
+    for p in (where.min(axis=0), where.max(axis=0)):
+        try:
+            check_move(p, p, limits)
+        except UnsafeMove as e:
+            raise CliError(f"calibrate-range would leave the machine envelope: {e}; start "
+                           f"elsewhere or take fewer or shorter steps") from None
 
 
 def cmd_range(args: argparse.Namespace) -> int:

@@ -18,6 +18,21 @@ from .calibrate import (
 from .matched_filter import MatchedFilter, speed_of_sound_mm_s
 
 
+def positions(start: dict[str, float], steps: int, step_mm: float, lateral: int = 1,
+              lateral_mm: float = 0.5, rise_mm: float = 0.5) -> np.ndarray:
+    """(steps * lateral, 3) stage X, Y, Z (mm) the procedure visits, in its order: depth i
+    is i * step_mm back in Y, rise_mm-spaced heights in an order unrelated to the depth,
+    lateral X positions lateral_mm apart centred on start."""
+    heights = np.random.default_rng(0).permutation(steps)  # fixed, unrelated to the depth
+    out = []
+    for i in range(steps):
+        dz = rise_mm * (float(heights[i]) - (steps - 1) / 2)  # centred on the gauged spot
+        for j in range(lateral):
+            dx = lateral_mm * (j - (lateral - 1) / 2)
+            out.append((start["X"] + dx, start["Y"] - i * step_mm, start["Z"] + dz))
+    return np.array(out, float).reshape(-1, 3)
+
+
 def calibrate_range(stage: object, sensor: object, start: dict[str, float],
                     start_distance_mm: float, steps: int = 11, step_mm: float = 0.5,
                     shots: int = 10, average: int = 16, temperature_c: float = 20.0,
@@ -42,13 +57,12 @@ def calibrate_range(stage: object, sensor: object, start: dict[str, float],
     n = sensor.configure(n_samples=1024, n_average=average, pretrigger=0,
                          trigger_timeout_ms=2000)["n_samples"]
     waves, phases, dists, spots, offs = [], [], [], [], []
-    heights = np.random.default_rng(0).permutation(steps)  # fixed, unrelated to the depth
+    where = positions(start, steps, step_mm, lateral, lateral_mm, rise_mm)
     for i in range(steps):
-        dz = rise_mm * (float(heights[i]) - (steps - 1) / 2)  # centred on the gauged spot
         for j in range(lateral):
-            dx = lateral_mm * (j - (lateral - 1) / 2)
-            stage.move(x=start["X"] + dx, y=start["Y"] - i * step_mm,
-                       z=start["Z"] + dz)
+            x, y, z = where[i * lateral + j]
+            dx, dz = x - start["X"], z - start["Z"]
+            stage.move(x=x, y=y, z=z)
             stage.wait()
             got = sensor.acquire(shots)
             ok = got.received

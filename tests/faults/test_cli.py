@@ -90,3 +90,23 @@ def test_acquire_settings_outside_the_spec_are_named_before_connecting(tmp_path,
     err = capsys.readouterr().err
     assert rc == 2 and f"{flag} {value} is outside {limits}" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "a.h5").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["-x", "9999", "-y", "200", "-z", "20"], "would leave the machine envelope: X9999 is "
+                                              "outside the machine envelope (-10..410 mm)"),
+    (["-x", "200", "-y", "5", "-z", "20", "--steps", "40"], "Y-14.5 is outside"),
+    (["-x", "200", "-y", "200", "-z", "20", "--steps", "1"], "--steps must be 2..1000"),
+    (["-x", "nan", "-y", "200", "-z", "20"], "-x must be a finite number"),
+    (["-x", "200", "-y", "200", "-z", "20", "--average", "0"], "--average 0 is outside 1..4096"),
+])
+def test_calibrate_range_refuses_a_bad_procedure_before_touching_a_board(tmp_path, capsys,
+                                                                         args, words):
+    """Every position the procedure would visit is checked first: the ports here do not
+    even exist, so reaching them would be a different error."""
+    rc = main(["calibrate-range", "--sensor", str(tmp_path / "s"), "--stage",
+               str(tmp_path / "t"), "--start-distance", "20", *args, "-o",
+               str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and words in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "r.json").exists()

@@ -1,8 +1,10 @@
-"""Files the host writes and reads back: content hashes (bottom layer: imports no dmdsm)."""
+"""Files the host writes and reads back: content hashes and checks of what a user's file
+holds (bottom layer: imports no dmdsm)."""
 
 from __future__ import annotations
 
 import hashlib
+import math
 from pathlib import Path
 
 
@@ -20,3 +22,17 @@ def file_hash(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def vector3(value: object, what: str, nonzero: bool = False) -> list[float]:
+    """`value` as three finite numbers (a direction when nonzero: not all zero); ValueError
+    naming `what` otherwise, fit for a one-line error."""
+    ok = isinstance(value, list) and len(value) == 3 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+        for x in value)
+    if not ok:
+        raise ValueError(f"{what} must be three finite numbers, e.g. [0.0, 1.0, 0.0] "
+                         f"(got {one_line(repr(value), 40)})")
+    if nonzero and not any(value):
+        raise ValueError(f"{what} is a direction and cannot be [0, 0, 0]")
+    return [float(x) for x in value]

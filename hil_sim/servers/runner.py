@@ -62,6 +62,12 @@ class Simulation:
         self.cfg = cfg = cfg or SimConfig()
         if cfg.scene not in SCENES:
             raise ValueError(f"unknown scene {cfg.scene!r}; known: {', '.join(SCENES)}")
+        for what, value, lo, hi in (("--rep-rate (laser shots per s)", cfg.rep_rate_hz, 1, 1e5),
+                                    ("--sensor-link (bytes/s)", cfg.sensor_link_bytes_per_s,
+                                     1e3, 1e9),
+                                    ("--temperature (degC)", cfg.temperature_c, -40, 80)):
+            if not lo <= value <= hi:  # also NaN; the emulator's physics holds in these ranges
+                raise ValueError(f"{what} must be within {lo:g}..{hi:g} (got {value:g})")
         f = parse_faults(cfg.faults)
         stage_keys = {"lost_ok", "spurious_resend", "busy_extra_s"}
         stage_faults = StageFaults(**{k: v for k, v in f["stage"].items() if k in stage_keys})

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..files import file_hash
+from ..files import file_hash, vector3
 from .solver import CalibrationError, CalibrationResult
 
 
@@ -19,7 +19,7 @@ def load_calibration(path: Path) -> tuple[dict, str]:
     try:
         text = Path(path).read_text()
         cal = tomllib.loads(text)["calibration"]
-        out = {k: [float(x) for x in cal[k]] for k in ("v", "n", "X_R")}
+        out = {k: vector3(cal[k], k, nonzero=k != "X_R") for k in ("v", "n", "X_R")}
     except OSError as e:
         raise CalibrationError(f"cannot read calibration {path}: {e.strerror}; run `dmdsm "
                        f"calibrate` first") from None

@@ -110,3 +110,46 @@ def test_calibrate_range_refuses_a_bad_procedure_before_touching_a_board(tmp_pat
     err = capsys.readouterr().err
     assert rc == 2 and words in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[ports]\nsensor = 5\n", "[ports] takes sensor = \"/dev/...\""),
+    ("[ports]\nsenser = \"/dev/ttyACM0\"\n", "(got senser = "),
+    ("ports = 3\n", "[ports] must be a table"),
+    ("[calibration]\nv = \"x\"\n", "[calibration] v must be three finite numbers"),
+    ("[calibration]\nX_R = [1, 2]\n", "[calibration] X_R must be three finite numbers"),
+    ("[calibration]\nn = [0, 0, 0]\n", "[calibration] n is a direction and cannot be [0, 0, 0]"),
+    ("[calibration]\nv = [0, nan, 1]\n", "[calibration] v must be three finite numbers"),
+])
+def test_a_config_file_with_a_wrong_value_is_named_before_a_board_is_touched(tmp_path, capsys,
+                                                                            text, words):
+    """A config value of the wrong kind (a port as a number) once ended in a TypeError."""
+    cfg = tmp_path / "dmdsm.toml"
+    cfg.write_text(text)
+    assert main(["stage", "where", "--config", str(cfg), "--stage", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert f"{cfg}: " in err and words in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[calibration]\nv = [0, 1]\nn = [0, 0, 1]\nX_R = [1, 2, 3]\n", "v must be three finite"),
+    ("[calibration]\nv = [0, 0, 0]\nn = [0, 0, 1]\nX_R = [1, 2, 3]\n", "v is a direction"),
+])
+def test_a_calibration_with_a_wrong_vector_is_one_line(tmp_path, text, words):
+    from dmdsm.host.calibration.result import load_calibration
+    from dmdsm.host.calibration.solver import CalibrationError
+
+    path = tmp_path / "cal.toml"
+    path.write_text(text)
+    with pytest.raises(CalibrationError, match=words):
+        load_calibration(path)
+
+
+@pytest.mark.parametrize("flag, value", [("--rep-rate", "0"), ("--rep-rate", "nan"),
+                                         ("--temperature", "2000"), ("--sensor-link", "-1")])
+def test_sim_settings_outside_the_emulators_physics_are_one_line(capsys, flag, value):
+    """--rep-rate 0 once ended in a ZeroDivisionError."""
+    assert main(["sim", flag, value]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag} (" in err and "must be within" in err and len(err.strip().splitlines()) == 1

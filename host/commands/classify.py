@@ -22,6 +22,7 @@ from ..classify.materials import (
 )
 from ..classify.model_file import check_provenance, read_model, save_model
 from ..classify.predict import predict_scan, vote
+from ..links.sensor import config_range
 from ..report.plots import confusion_figure
 from .errors import check_output
 
@@ -106,8 +107,13 @@ def cmd_classify(args: argparse.Namespace) -> int:
     from .errors import CliError
 
     try:
-        if args.window < 16:
-            raise ClassifyError(f"--window must be at least 16 samples (got {args.window})")
+        hi = config_range("n_samples")[1]  # a window longer than any waveform
+        if not 16 <= args.window <= hi:
+            raise ClassifyError(f"--window must be 16..{hi} samples (got {args.window})")
+        for flag in ("trials", "boss_trials"):
+            if getattr(args, flag, 1) < 1:
+                raise ClassifyError(f"--{flag.replace('_', '-')} must be at least 1 (got "
+                                    f"{getattr(args, flag)})")
         return {"train": _train, "evaluate": _evaluate, "predict": _predict}[args.action](args)
     except ClassifyError as e:
         raise CliError(str(e)) from None
@@ -155,14 +161,21 @@ def _evaluate(args: argparse.Namespace) -> int:
             tables.append(f"{name} ({args.modality}), {label}, % of each true material:\n"
                           + confusion_table(cm, classes))
         res["classifiers"][name] = {**r, "trials": trials}
-    if args.json:
+    if args.json:  # a material no split could test has no accuracy: null, not NaN
+        for r in res["classifiers"].values():
+            for proto in ("random", "loo"):
+                if proto in r:
+                    r[proto] = {c: a if np.isfinite(a) else None for c, a in r[proto].items()}
         print(json.dumps(res))
         return 0
     print(f"{len(ds)} points, {res['objects']} objects (simulated data, not a reproduction "
           f"of the paper's {PAPER})")
     for name, r in res["classifiers"].items():
         for proto, acc in ((k, v) for k, v in r.items() if k != "trials"):
-            print(f"{name:>10} {proto:>6}: " + ", ".join(f"{c} {a:.1%}" for c, a in acc.items()))
+            print(f"{name:>10} {proto:>6}: " + ", ".join(
+                f"{c} {a:.1%}" if np.isfinite(a) else f"{c} untested" + (
+                    " (no other object of it)" if proto == "loo" else "")
+                for c, a in acc.items()))
     print("\n" + "\n\n".join(tables))
     return 0
 

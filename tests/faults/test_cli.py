@@ -153,3 +153,34 @@ def test_sim_settings_outside_the_emulators_physics_are_one_line(capsys, flag, v
     assert main(["sim", flag, value]) == 2
     err = capsys.readouterr().err
     assert f"{flag} (" in err and "must be within" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args, words", [
+    (["train", "-o", "m.model", "--window", "99999999"], "--window must be 16..8192 samples"),
+    (["evaluate", "--trials", "0"], "--trials must be at least 1 (got 0)"),
+    (["evaluate", "--boss-trials", "-3"], "--boss-trials must be at least 1 (got -3)"),
+])
+def test_classify_numbers_out_of_range_are_one_line_before_any_work(tmp_path, capsys, args,
+                                                                    words):
+    """--window 99999999 once ran the machine out of memory; --trials 0 printed empty tables."""
+    assert main(["classify", args[0], "--db", str(tmp_path), *args[1:]]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_leave_one_object_out_without_a_second_object_is_untested_not_nan(tmp_path, capsys):
+    """A material with one object cannot be tested by leaving it out: the text says so and
+    the JSON holds null (NaN is not JSON)."""
+    import json
+
+    from dmdsm.sim.data.dataset import make_database
+
+    make_database(tmp_path / "db", points=12, seed=1, objects=["soda_can", "foam_block"])
+    common = ["classify", "evaluate", "--db", str(tmp_path / "db"), "--classifiers",
+              "minirocket", "--trials", "1", "--out", str(tmp_path / "out")]
+    assert main([*common, "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)["classifiers"]["minirocket"]
+    assert res["loo"] == {"aluminium": None, "foam": None}
+    assert all(0 <= a <= 1 for a in res["random"].values())
+    assert main(common) == 0
+    assert "aluminium untested (no other object of it)" in capsys.readouterr().out

@@ -160,7 +160,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     """Arm for N shots with a progress bar, then write them and report losses."""
     from tqdm import tqdm
 
-    from ..links.sensor import AcquisitionInterrupted, SensorClient, config_range
+    from ..links.sensor import AcquisitionInterrupted, AcquisitionLost, SensorClient, config_range
     from .errors import CliError
 
     if args.shots <= 0:
@@ -189,6 +189,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 print(f"\ndmdsm: acquisition stopped after {got} of {args.shots} shots; they "
                       f"are saved in {args.output}", file=sys.stderr)
                 raise
+            except AcquisitionLost as e:  # the cable, not the user: keep what arrived too
+                write_shots(args.output, e.shots, dict(sc.identity.fields), sc.port_name,
+                            status="interrupted")
+                raise CliError(f"{e}; they are saved in {args.output}") from None
         write_shots(args.output, shots, dict(sc.identity.fields), sc.port_name)
     finally:
         sc.close()

@@ -78,6 +78,15 @@ class SensorError(LinkError):
     """The sensor board refused or failed; str() says what to do."""
 
 
+class AcquisitionLost(SensorError):
+    """The link to the board was lost during acquire(); `shots` holds what had arrived
+    (received marks them), so the caller can keep it. str() says what to do."""
+
+    def __init__(self, message: str, shots: Shots) -> None:
+        super().__init__(message)
+        self.shots = shots
+
+
 @dataclass
 class Shots:
     """Waveforms of one acquisition, indexed by shot id (0 .. n-1 after arm)."""
@@ -433,8 +442,9 @@ class SensorClient:
             if count == n:
                 return
             if self.link_error:
-                raise SensorError(f"lost the sensor board on {self.port_name} mid-acquisition "
-                                  f"({self.link_error}); {count} of {n} shots arrived")
+                raise AcquisitionLost(f"lost the sensor board on {self.port_name} "
+                                      f"mid-acquisition ({self.link_error}); {count} of {n} "
+                                      f"shots arrived", shots)
             if time.monotonic() > deadline:
                 self.disarm()
                 return

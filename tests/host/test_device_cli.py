@@ -144,3 +144,32 @@ def test_a_stopped_move_stops_at_once_and_stage_stop_answers(emulator, sig, code
     time.sleep(1.0)
     r = dmdsm("stage", "where", "--stage", emu.stage, "--json")
     assert abs(json.loads(r.stdout)["A"] - stopped_at) < 5  # it stays stopped
+
+
+def test_a_cable_pulled_mid_acquisition_keeps_the_shots_that_arrived(emulator, tmp_path):
+    """A disconnect is not the user's doing, but its shots are as precious as after Ctrl-C:
+    they are written, marked interrupted, and the one-line error says where."""
+    import time
+
+    emu = emulator(speed=1.0)
+    out = tmp_path / "shots.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "dmdsm.host", "acquire", "--sensor",
+                             emu.sensor, "--shots", "5000", "--average", "4", "--samples",
+                             "512", "-o", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while emu.sim.sensor.shots < 400 and time.monotonic() < deadline:  # 100 waveforms
+        time.sleep(0.05)
+    with emu.server.lock:  # the cable is pulled and stays out
+        port = emu.server.ports["sensor"]
+        port.close()
+        port.down_until = float("inf")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err
+    last = err.strip().splitlines()[-1]
+    assert "lost the sensor board" in last and f"they are saved in {out}" in last, err
+    with h5py.File(out) as f:
+        assert f["/entry"].attrs["status"] == "interrupted"
+        got = f["/entry/data/received"][:]
+        assert 50 <= got.sum() < 5000
+        assert np.ptp(f["/entry/data/waveforms"][int(np.argmax(got))]) > 500

@@ -61,7 +61,7 @@ def test_flash_zi2_builds_and_flashes_the_zi2_variant(tmp_path):
 
 def test_flash_marlin_explains_avrdude_failures(tmp_path):
     hexfile = tmp_path / "marlin.hex"
-    hexfile.write_text(":00000001FF\n")
+    hexfile.write_text(":020000000C945E\n:00000001FF\n")  # one jmp word, then the end
     cases = [
         ("avrdude: ser_open(): can't open device /dev/ttyUSB9: Permission denied",
          "no permission on /dev/ttyUSB9: add yourself to the dialout group"),
@@ -78,10 +78,21 @@ def test_flash_marlin_explains_avrdude_failures(tmp_path):
 
 def test_flash_marlin_passes_the_right_avrdude_arguments(tmp_path):
     hexfile = tmp_path / "marlin.hex"
-    hexfile.write_text(":00000001FF\n")
+    hexfile.write_text(":020000000C945E\n:00000001FF\n")  # one jmp word, then the end
     log = tmp_path / "args.txt"
     r = run(tmp_path, "--port", "/dev/ttyUSB0", str(hexfile),
             fake_tool=("avrdude", f"#!/bin/sh\necho \"$@\" > {log}\n"), target="marlin")
     assert r.returncode == 0, r.stderr
     assert log.read_text().split() == ["-p", "atmega2560", "-c", "wiring", "-P", "/dev/ttyUSB0",
                                        "-b", "115200", "-D", "-U", f"flash:w:{hexfile}:i"]
+
+
+def test_flash_marlin_refuses_a_file_that_is_not_an_image_before_avrdude_runs(tmp_path):
+    """avrdude -D would write whatever it parses: an ELF or a cut file is named first."""
+    elf = tmp_path / "Marlin.elf"
+    elf.write_bytes(b"\x7fELF" + bytes(60))
+    log = tmp_path / "ran.txt"
+    r = run(tmp_path, "--port", "/dev/ttyUSB0", str(elf),
+            fake_tool=("avrdude", f"#!/bin/sh\ntouch {log}\n"), target="marlin")
+    assert r.returncode == 2 and "is an ELF file: flash the .hex beside it" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not log.exists()

@@ -8,6 +8,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from .ihex import HexError, check_hex
+
 REPO = Path(__file__).resolve().parents[2]
 TOOLS = {  # --tool -> (program, Debian/PyPI package, make FLASHER)
     "openocd": ("openocd", "apt-get install openocd", "openocd"),
@@ -89,6 +91,10 @@ def cmd_flash_marlin(args: argparse.Namespace) -> int:
     """Flash a Marlin .hex to the Chiron's ATmega2560 with avrdude (wiring/stk500v2 bootloader)."""
     if not args.hex.is_file():
         raise FlashError(f"{args.hex} not found: build the patched Marlin first (docs/marlin.md)")
+    try:
+        check_hex(args.hex)  # before avrdude erases the board's flash
+    except HexError as e:
+        raise FlashError(str(e)) from None
     if shutil.which("avrdude") is None:
         raise FlashError("avrdude not found: apt-get install avrdude")
     cmd = ["avrdude", "-p", "atmega2560", "-c", "wiring", "-P", args.port, "-b", "115200",

@@ -74,9 +74,12 @@ def _scan(args: argparse.Namespace) -> None:
     """One step of the procedure against the boards, appended to args.data."""
     from tqdm import tqdm
 
+    from dmdsm.marlin_patch import load_machine
+
     from ..calibration.procedure import RigPlan, check_plan, scan_rig
     from ..links.config import load_config, resolve_port
-    from ..links.sensor import SensorClient
+    from ..links.safety import UnsafeMove, check_target
+    from ..links.sensor import SensorClient, config_range
     from ..links.stage import StageClient
     from ..links.transport import LinkError
     from ..ranging.calibrate import RangingSetup
@@ -93,8 +96,12 @@ def _scan(args: argparse.Namespace) -> None:
                    average=args.average)
     try:
         check_plan(plan, args.step)
+        check_target({"X": x, "Y": y, "Z": z}, load_machine())  # before a board is touched
     except ValueError as e:
-        raise CliError(str(e)) from None
+        raise CliError(f"--at: {e}" if isinstance(e, UnsafeMove) else str(e)) from None
+    lo, hi = config_range("n_average")
+    if not lo <= args.average <= hi:
+        raise CliError(f"--average {args.average} is outside {lo}..{hi}")
     try:
         setup = RangingSetup.load(args.ranging)
     except ValueError as e:

@@ -37,14 +37,26 @@ class KeepOut:
                 & (h < self.height_mm + self.margin_mm))
 
 
+def check_target(target: dict[str, float | None], limits: MachineLimits) -> None:
+    """Raise UnsafeMove if an axis target (X, Y, Z in mm; A in deg) is not a finite number
+    or, for X, Y, Z, lies outside the machine envelope. None means the axis stays."""
+    for axis, value in target.items():
+        if value is None:
+            continue
+        if not np.isfinite(value):
+            raise UnsafeMove(f"{axis} {value} is not a position: give a finite number")
+        if axis in "XYZ":
+            i = "XYZ".index(axis)
+            lo, hi = limits.min_pos[i], limits.max_pos[i]
+            if not lo <= value <= hi:
+                raise UnsafeMove(f"{axis}{value:g} is outside the machine envelope "
+                                 f"({lo:g}..{hi:g} mm)")
+
+
 def check_move(start: np.ndarray, target: np.ndarray, limits: MachineLimits,
                keep_out: KeepOut | None = None, steps: int = 400) -> None:
     """Raise UnsafeMove if the straight XYZ path from start to target (mm) is not allowed."""
-    for i, axis in enumerate("XYZ"):
-        lo, hi = limits.min_pos[i], limits.max_pos[i]
-        if not lo <= target[i] <= hi:
-            raise UnsafeMove(f"{axis}{target[i]:g} is outside the machine envelope "
-                             f"({lo:g}..{hi:g} mm)")
+    check_target(dict(zip("XYZ", (float(t) for t in target))), limits)
     if keep_out is None or keep_out.radius_mm <= 0:
         return
     path = start + np.linspace(0, 1, steps)[:, None] * (np.asarray(target) - start)

@@ -18,6 +18,11 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
+import numpy as np
+
+from dmdsm.marlin_patch import MachineLimits, load_machine
+
+from .safety import check_target
 from .transport import LinkError, open_port
 
 OK_N = re.compile(r"^ok\s+N(\d+)(?:\s+P(\d+))?(?:\s+B(\d+))?")
@@ -58,8 +63,12 @@ class StageClient:
     """A Marlin board on a serial port (or pty / URL)."""
 
     def __init__(self, port: str, baudrate: int = 250000, timeout_s: float = 5.0,
-                 window: int = 4, stop_first: bool = False) -> None:
+                 window: int = 4, stop_first: bool = False,
+                 limits: MachineLimits | None = None) -> None:
         self.port_name = port
+        # every absolute move is checked against this envelope before it is sent, whoever
+        # asks for it (a command, a procedure, the API): the last guard before the wire
+        self.limits = limits or load_machine()
         self.ser = open_port(port, baudrate)
         self.timeout_s = timeout_s
         self.window = window
@@ -296,7 +305,14 @@ class StageClient:
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              a: float | None = None, feed_mm_min: float | None = None,
              relative: bool = False, wait: bool = False) -> None:
-        """G1 to X Y Z (mm) and A (deg); queued unless wait."""
+        """G1 to X Y Z (mm) and A (deg); queued unless wait. A target that is not a finite
+        number, or (absolute) outside the machine envelope, raises UnsafeMove unsent."""
+        target = dict(zip("XYZA", (x, y, z, a)))
+        if relative:
+            check_target({k: v for k, v in target.items() if v is not None and
+                          not np.isfinite(v)}, self.limits)
+        else:
+            check_target(target, self.limits)
         words = [f"{k}{v:.4f}" for k, v in zip("XYZA", (x, y, z, a)) if v is not None]
         if feed_mm_min:
             words.append(f"F{feed_mm_min:.0f}")

@@ -184,3 +184,26 @@ def test_leave_one_object_out_without_a_second_object_is_untested_not_nan(tmp_pa
     assert all(0 <= a <= 1 for a in res["random"].values())
     assert main(common) == 0
     assert "aluminium untested (no other object of it)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("at, extra, words", [
+    (["9999", "266", "20"], [], "--at: X9999 is outside the machine envelope"),
+    (["nan", "266", "20"], [], "--at: X nan is not a position"),
+    (["235", "266", "20"], ["--average", "0"], "--average 0 is outside 1..4096"),
+])
+def test_a_calibration_step_refuses_a_bad_start_before_touching_a_board(tmp_path, capsys, at,
+                                                                        extra, words):
+    """`--at nan` once scanned the whole tip step at X nan; the ports here do not exist."""
+    from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
+    from dmdsm.host.ranging.matched_filter import gaussian_pulse
+
+    fs = 240e6 / 72
+    RangingSetup(fs, {"oa": gaussian_pulse(fs, 1e6, 0.8)}, {"oa": (0, 1024)},
+                 {"oa": RangeCal("oa", 2e-6, 343e3, 0, 0, 0, 3)}).save(tmp_path / "r.json")
+    data = tmp_path / "d.csv"
+    rc = main(["calibrate", "--step", "tip", "--at", *at, *extra, "--sensor",
+               str(tmp_path / "s"), "--stage", str(tmp_path / "t"), "--ranging",
+               str(tmp_path / "r.json"), "--data", str(data)])
+    err = capsys.readouterr().err
+    assert rc == 2 and words in err and len(err.strip().splitlines()) == 1, err
+    assert not data.exists()

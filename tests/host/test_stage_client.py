@@ -22,6 +22,29 @@ def test_home_move_where(emulator):
     st.close()
 
 
+def test_a_move_outside_the_envelope_or_to_nan_is_refused_unsent(emulator):
+    """The client is the last guard before the wire, whoever asks for the move: a NaN once
+    went out as `G1 Xnan` from a calibration step."""
+    from dmdsm.host.links.safety import UnsafeMove
+
+    emu = emulator()
+    st = StageClient(emu.stage)
+    st.move(x=20, y=30, z=5, wait=True)
+    before = len(emu.sim.stage.executed)
+    for bad, words in (({"x": float("nan")}, "X nan is not a position"),
+                       ({"x": 9999.0}, "X9999 is outside the machine envelope (-10..410 mm)"),
+                       ({"z": -50.0}, "Z-50 is outside the machine envelope"),
+                       ({"a": float("inf")}, "A inf is not a position")):
+        with pytest.raises(UnsafeMove, match=words.replace("(", r"\(").replace(")", r"\)")):
+            st.move(**bad)
+    with pytest.raises(UnsafeMove, match="X nan"):
+        st.move(x=float("nan"), relative=True)
+    time.sleep(0.1)
+    assert len(emu.sim.stage.executed) == before  # nothing reached the firmware
+    assert st.where() == {"X": 20.0, "Y": 30.0, "Z": 5.0, "A": 0.0}  # and the link is fine
+    st.close()
+
+
 def moves_executed(sim):
     """G1 moves the emulator executed, in order (its ground-truth log)."""
     return [cmd for n, cmd in sim.stage.executed if cmd.startswith("G1 ")]

@@ -157,7 +157,7 @@ def _steps_in(path: Path) -> set[str]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Scan a step, or solve from a data file; save the TOML, print Table I with +- std."""
-    from .errors import CliError, check_output
+    from .errors import CliError, check_output, keep_previous
 
     if args.step != "tip":
         check_output(args.output)  # before the edge step measures anything
@@ -177,9 +177,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         r = solve(data)
     except CalibrationError as e:
         raise CliError(str(e)) from None
+    previous = keep_previous(args.output)
     write_result(r, args.output, str(source))
+    kept = f" (the earlier one is kept as {previous})" if previous else ""
     if args.json:
-        print(json.dumps(result_dict(r)))
+        print(json.dumps({**result_dict(r), "file": str(args.output),
+                          "previous": str(previous) if previous else None}))
         return 0
     for name in ("v", "n", "X_R"):
         val, sd = getattr(r, name), r.std[name]
@@ -188,5 +191,5 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               + "]")
     print(f"rms residual {r.rms_residual_mm * 1000:.1f} um; depth scatter beyond the raw "
           f"points' spread: tips {r.tip_depth_scatter_mm * 1000:.0f} um, edges "
-          f"{r.edge_depth_scatter_mm * 1000:.0f} um; saved {args.output}")
+          f"{r.edge_depth_scatter_mm * 1000:.0f} um; saved {args.output}{kept}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 
@@ -35,3 +36,20 @@ def check_output(path: Path, keep_existing: bool = False) -> None:
                        f"or name another file")
     if not os.access(folder, os.W_OK):
         raise CliError(f"cannot write {path}: no permission to write in {folder}")
+
+
+def keep_previous(path: Path) -> Path | None:
+    """Before a calibration is written over an earlier one, move the earlier one aside to
+    NAME.YYYYmmdd-HHMMSS.SUFFIX (as Klipper keeps printer.cfg on SAVE_CONFIG); its new name,
+    or None if there was none."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(path.stat().st_mtime))
+    backup = path.with_name(f"{path.stem}.{stamp}{path.suffix}")
+    k = 1
+    while backup.exists():  # two in the same second: never over another backup
+        backup = path.with_name(f"{path.stem}.{stamp}-{k}{path.suffix}")
+        k += 1
+    path.replace(backup)
+    return backup

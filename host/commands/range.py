@@ -12,7 +12,7 @@ import numpy as np
 from ..ranging.calibrate import MODALITIES, RangingSetup, distance_std_mm, range_waveforms
 from ..ranging.matched_filter import speed_of_sound_mm_s
 from ..ranging.procedure import calibrate_range
-from .errors import check_output
+from .errors import check_output, keep_previous
 from .options import add_ports
 
 
@@ -72,13 +72,16 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     finally:
         sc.close()
+    previous = keep_previous(args.output)
     setup.save(args.output)
     if args.json:
-        print(json.dumps({"file": str(args.output), **report}))
+        print(json.dumps({"file": str(args.output), **report,
+                          "previous": str(previous) if previous else None}))
     else:
         for m, text in report.items():
             print(f"{m.upper()}: {text}")
-        print(f"saved {args.output}")
+        print(f"saved {args.output}" + (f" (the earlier one is kept as {previous})"
+                                        if previous else ""))
     return 0
 
 

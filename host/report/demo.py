@@ -329,18 +329,18 @@ def stage_classify(d: Demo) -> Section:
 
 
 def keep_previous_databases(out: Path) -> None:
-    """Each demo scans into fresh databases: a previous run's `db` and `validation` move to
-    out/previous/<name>-<time of their last change>, so the classifier never mixes runs (or
-    sample rates) and nothing a user may want is deleted."""
-    for name in ("db", "db_fly", "validation"):
+    """Each demo scans into fresh databases: a previous run's `db` and `validation` (and its
+    calibrations) move to out/previous/<name>-<time of their last change>, so the classifier
+    never mixes runs (or sample rates) and nothing a user may want is deleted."""
+    for name in ("db", "db_fly", "validation", "ranging.json", "calibration.toml"):
         old = out / name
-        if old.is_dir() and not old.is_symlink():
+        if old.exists() and not old.is_symlink():
             stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(old.stat().st_mtime))
-            target = out / "previous" / f"{name}-{stamp}"
+            target = out / "previous" / f"{old.stem}-{stamp}{old.suffix}"
             n = 1
             while target.exists():
                 n += 1
-                target = out / "previous" / f"{name}-{stamp}-{n}"
+                target = out / "previous" / f"{old.stem}-{stamp}-{n}{old.suffix}"
             target.parent.mkdir(exist_ok=True)
             old.rename(target)
 

@@ -22,3 +22,33 @@ def test_previous_databases_move_aside_and_nothing_is_lost(tmp_path):
 def test_nothing_to_move_on_a_first_run(tmp_path):
     keep_previous_databases(tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_previous_runs_calibrations_move_aside_too(tmp_path):
+    (tmp_path / "ranging.json").write_text("{}")
+    (tmp_path / "calibration.toml").write_text("[calibration]\n")
+    keep_previous_databases(tmp_path)
+    kept = sorted(p.name for p in (tmp_path / "previous").iterdir())
+    assert [k.split("-")[0] for k in kept] == ["calibration", "ranging"]
+    assert kept[0].endswith(".toml") and kept[1].endswith(".json")
+    assert not (tmp_path / "ranging.json").exists()
+
+
+def test_keep_previous_moves_an_earlier_calibration_aside_with_its_time(tmp_path):
+    """calibrate and calibrate-range never write over an earlier result: it is renamed,
+    stamped with the time it was written, and a second one in that second does not collide."""
+    import time
+
+    from dmdsm.host.commands.errors import keep_previous
+
+    assert keep_previous(tmp_path / "ranging.json") is None
+    names = []
+    for text in ("first", "second"):
+        (tmp_path / "ranging.json").write_text(text)
+        os.utime(tmp_path / "ranging.json", (1_700_000_000, 1_700_000_000))
+        names.append(keep_previous(tmp_path / "ranging.json"))
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(1_700_000_000))
+    assert names[0].name == f"ranging.{stamp}.json"
+    assert names[1].name == f"ranging.{stamp}-1.json"
+    assert [n.read_text() for n in names] == ["first", "second"]
+    assert not (tmp_path / "ranging.json").exists()

@@ -123,8 +123,9 @@ class GcodeMixin:
 
     # ------------------------------------------------------------------ motion
     def _G0(self, words: dict, n: int | None) -> bool:
-        if words.get("F"):
-            self.feed_mm_s = words["F"] / 60.0
+        feed = words.get("F")
+        if feed is not None and feed > 0:  # Marlin keeps the last feedrate for F <= 0, NaN
+            self.feed_mm_s = feed / 60.0
         target = self._target(words)
         start = self.planner.to_steps(self.current - self.offset)
         end = self.planner.to_steps(target - self.offset)

@@ -22,7 +22,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
-from .safety import check_target
+from .safety import UnsafeMove, check_target
 from .transport import LinkError, open_port
 
 OK_N = re.compile(r"^ok\s+N(\d+)(?:\s+P(\d+))?(?:\s+B(\d+))?")
@@ -313,6 +313,9 @@ class StageClient:
                           not np.isfinite(v)}, self.limits)
         else:
             check_target(target, self.limits)
+        if feed_mm_min is not None and not 0 < feed_mm_min < float("inf"):
+            raise UnsafeMove(f"feedrate {feed_mm_min} mm/min: give a positive number (Marlin "
+                             f"would keep its last one)")
         words = [f"{k}{v:.4f}" for k, v in zip("XYZA", (x, y, z, a)) if v is not None]
         if feed_mm_min:
             words.append(f"F{feed_mm_min:.0f}")

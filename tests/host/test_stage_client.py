@@ -39,6 +39,9 @@ def test_a_move_outside_the_envelope_or_to_nan_is_refused_unsent(emulator):
             st.move(**bad)
     with pytest.raises(UnsafeMove, match="X nan"):
         st.move(x=float("nan"), relative=True)
+    for feed in (-100.0, 0.0, float("nan")):  # Marlin would keep its last feedrate
+        with pytest.raises(UnsafeMove, match="feedrate .* give a positive number"):
+            st.move(x=30, feed_mm_min=feed)
     time.sleep(0.1)
     assert len(emu.sim.stage.executed) == before  # nothing reached the firmware
     assert st.where() == {"X": 20.0, "Y": 30.0, "Z": 5.0, "A": 0.0}  # and the link is fine

@@ -72,6 +72,19 @@ def test_homing_then_absolute_moves_and_m114(stage):
     assert int(counts["Y"]) == round((30 - LIMITS.min_pos[1]) * LIMITS.steps_per_unit[1])
 
 
+def test_a_feedrate_of_zero_or_less_keeps_the_last_one(stage):
+    """Marlin takes F only when it is > 0 (gcode.cpp, get_destination_from_command); the
+    emulator once took F-100 as a speed, and the move never ended."""
+    stage.send("G92 A0")
+    stage.send(f"G1 A10 F{LIMITS.max_feedrate[3] * 60:.0f}")
+    for i, f in enumerate(("F-100", "F0", "Fnan"), 1):
+        stage.send(f"G1 A{10 + 10 * i} {f}")
+    t0 = stage.clock()
+    stage.send("M400", timeout=60 / stage.speed + 5)
+    assert stage.clock() - t0 < 5  # three 10 deg moves at the turntable's full speed
+    assert _pos(stage.send("M114")[0])["A"] == 40.0
+
+
 def test_turntable_axis_a_in_degrees_with_busy_keepalive(stage):
     stage.send("G92 A0")
     stage.send("G91")

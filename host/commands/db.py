@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import vector3
 from ..scan.catalogue import CatalogueError, find_scan, list_scans, rebuild, verify
 from ..scan.points import MODS, scan_points, validate_block
 from ..scan.reconstruct import ply_text
@@ -26,7 +27,10 @@ def load_truth(path: Path) -> tuple[float, float]:
         doc = tomllib.loads(Path(path).read_text())
         if doc.get("shape", "box") != "box":
             raise ValueError(f"shape {doc.get('shape')!r} is not supported (only \"box\")")
-        w, d = (float(x) for x in doc["size_mm"][:2])
+        size = vector3(doc["size_mm"], "size_mm")
+        if not all(0 < x <= 1000 for x in size):  # the machine's bed is 410 mm
+            raise ValueError(f"size_mm must be three lengths in 0..1000 mm (got {size})")
+        w, d = size[:2]
     except OSError as e:
         raise CliError(f"cannot read truth {path}: {e.strerror}") from None
     except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:

@@ -207,3 +207,23 @@ def test_a_calibration_step_refuses_a_bad_start_before_touching_a_board(tmp_path
     err = capsys.readouterr().err
     assert rc == 2 and words in err and len(err.strip().splitlines()) == 1, err
     assert not data.exists()
+
+
+@pytest.mark.parametrize("size, words", [
+    ("[-5, 30, 40]", "size_mm must be three lengths in 0..1000 mm"),
+    ("[nan, 30, 40]", "size_mm must be three finite numbers"),
+    ("[1e308, 1e308, 1e308]", "size_mm must be three lengths in 0..1000 mm"),
+    ("[50, 30]", "size_mm must be three finite numbers"),
+])
+def test_a_truth_file_with_impossible_sizes_is_one_line(tmp_path, capsys, size, words):
+    """A NaN size once ended in scipy's 'Residuals are not finite' traceback; a negative one
+    gave a confident, meaningless error figure."""
+    from dmdsm.host.commands.db import load_truth
+    from dmdsm.host.commands.errors import CliError
+
+    truth = tmp_path / "block.toml"
+    truth.write_text(f'shape = "box"\nsize_mm = {size}\n')
+    with pytest.raises(CliError, match=words.replace(".", r"\.")):
+        load_truth(truth)
+    truth.write_text('shape = "box"\nsize_mm = [50, 30, 40]\n')
+    assert load_truth(truth) == (50.0, 30.0)

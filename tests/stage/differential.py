@@ -61,8 +61,9 @@ class Stage:
 
 
 def commands(rng: random.Random, n: int) -> list[tuple[str, bool]]:
-    """n random lines as (command, numbered): moves in both modes, positions, waits, unknown
-    and lower-case commands, G92 on A; every line is short enough for Marlin."""
+    """n random lines as (command, numbered): moves in both modes (some past the soft
+    endstops, some with F <= 0), positions, waits, unknown and lower-case commands, G92 on A;
+    every line is short enough for Marlin."""
     out: list[tuple[str, bool]] = [("G28", True), ("G90", True)]
     for _ in range(n):
         k = rng.random()
@@ -71,9 +72,11 @@ def commands(rng: random.Random, n: int) -> list[tuple[str, bool]]:
             words = []
             for a in axes:
                 lo, hi = {"X": (-10, 410), "Y": (0, 410), "Z": (0, 60), "A": (-720, 720)}[a]
+                if rng.random() < 0.1:  # past the soft endstops: Marlin clamps
+                    lo, hi = lo - 50, hi + 50
                 words.append(f"{a}{rng.uniform(lo, hi):.3f}")
-            if rng.random() < 0.5:
-                words.append(f"F{rng.choice([600, 3000, 6000, 12000])}")
+            if rng.random() < 0.5:  # F <= 0 keeps the last feedrate
+                words.append(f"F{rng.choice([600, 3000, 6000, 12000, 0, -100])}")
             out.append((f"G{rng.choice([0, 1])} " + " ".join(words), True))
         elif k < 0.45:
             out.append((rng.choice(["G90", "G91", "M400", "M114", "M114 D"]), True))

@@ -92,13 +92,17 @@ class GcodeMixin:
         count to the min position's, G92 leaves it alone)."""
         return np.rint((raw + self.native0) * self.planner.spu).astype(np.int64)
 
-    def _position_line(self, live: bool = False) -> str:
+    def _position_line(self, live: bool = False, live_counts: bool = False) -> str:
         """The M114 / M154 report: logical position of the last move, then the counts of
-        that target (live: where the steppers are now, as M114 R)."""
+        that target (live: where the steppers are now, as M114 R; live_counts: the last
+        move's position with the steppers' counts now, as Marlin's report_current_position
+        after G92 prints them)."""
         self.planner.update(self.now)
         if live:
             raw = self.planner.position()
             pos_v, counts_v = raw + self.offset, self._counts(raw)
+        elif live_counts:
+            pos_v, counts_v = self.current, self._counts(self.planner.position())
         else:
             pos_v, counts_v = self.current, self._counts(self.current - self.offset)
         pos = " ".join(f"{a}:{marlin_float(v)}" for a, v in zip(self._axes(), pos_v))
@@ -189,7 +193,9 @@ class GcodeMixin:
                 raw = self.current[i] - self.offset[i]
                 self.offset[i] = words[a] - raw
                 self.current[i] = words[a]
-        self.out.append(self._position_line())  # Marlin's G92 reports the new position
+        # Marlin's G92 ends in report_current_position(): the new logical position, and
+        # stepper.report_positions(), the counts where the steppers are now (a move may run)
+        self.out.append(self._position_line(live_counts=True))
 
     # ------------------------------------------------------------------ M codes
     def _M17(self, words: dict, n: int | None) -> None:

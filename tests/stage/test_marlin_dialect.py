@@ -83,6 +83,8 @@ def test_a_feedrate_of_zero_or_less_keeps_the_last_one(stage):
     stage.send("M400", timeout=60 / stage.speed + 5)
     assert stage.clock() - t0 < 5  # three 10 deg moves at the turntable's full speed
     assert _pos(stage.send("M114")[0])["A"] == 40.0
+    stage.send(f"G1 A0 F{LIMITS.max_feedrate[3] * 60:.0f}")  # the steppers as they were
+    stage.send("M400", timeout=60 / stage.speed + 5)
 
 
 def test_turntable_axis_a_in_degrees_with_busy_keepalive(stage):
@@ -204,3 +206,26 @@ def test_an_over_long_numbered_line_loses_its_checksum(stage):
     stage.raw(stage.numbered("G90", n=last + 1))  # the resend, short this time
     assert OK.match(stage.until_ok()[-1])
     stage.n = last + 1
+
+
+def _counts(line):
+    return {k: int(v) for k, v in re.findall(r"([XYZA]):(-?\d+)", line.split("Count")[1])}
+
+
+def test_g92_during_a_move_prints_where_the_steppers_are_now(stage):
+    """G92 ends in Marlin's report_current_position(): the new logical position, and the
+    counts of stepper.report_positions(), which a running move is still changing (M114 prints
+    the planner's target counts instead). The emulator once printed the target's counts."""
+    stage.send("G90")
+    stage.send("M400", timeout=60)
+    start = _counts(stage.send("M114")[0])["A"]
+    turn = 3600.0
+    end = start + round(turn * LIMITS.steps_per_unit[3])
+    here = _pos(stage.send("M114")[0])["A"]
+    stage.send(f"G1 A{here + turn:.2f} F{LIMITS.max_feedrate[3] * 60:.0f}")
+    stage.lines(1.0 / stage.speed)
+    report = stage.send("G92 A5")[0]
+    assert _pos(report)["A"] == 5.0
+    assert start < _counts(report)["A"] < end  # part way: the steppers, not the target
+    stage.raw("M410\n")  # stop the long turn
+    stage.until_ok()

@@ -1,7 +1,7 @@
 """Fly scanning's pure part: line speed, ramps, Marlin's trapezoid in time, and shot placement.
 
 A fly line is one G1 along X from rest to rest. Marlin runs it as a trapezoid in step rates
-that starts and ends at MINIMAL_STEP_RATE (120 steps/s), not at zero. The sensor board
+that starts and ends at MINIMAL_STEP_RATE (32 steps/s on the AVR), not at zero. The sensor board
 time-stamps the X STEP pulses (first, last, count: the motion_sync message) in the clock of
 its waveforms, so each shot is placed by `LineMotion.x_at` on the model anchored at the first
 step, with the time scaled so the model's last step falls on the measured one (Marlin's
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MINIMAL_STEP_RATE = 120.0  # steps/s: Marlin's lowest step rate of a moving block
+MINIMAL_STEP_RATE = 32.0  # steps/s: Marlin's lowest step rate (stepper.h
+# minimal_step_rate = F_CPU / 500000 on the 16 MHz AVR since 2.1's #26881, 2024-07; it was 120)
 SCALE_TOLERANCE = 0.01     # |measured / modelled duration - 1| above this: not the move we made
 CRUISE_TOLERANCE = 0.03    # |counted / planned advance per waveform - 1| within this: cruising
 

@@ -34,11 +34,16 @@ class StageLink:
         end = time.monotonic() + seconds
         out = []
         while time.monotonic() < end:
-            self.buf += self.port.read(4096)
+            self.buf += self._read()
             while b"\n" in self.buf:
                 line, self.buf = self.buf.split(b"\n", 1)
                 out.append(line.decode(errors="replace").strip())
         return out
+
+    def _read(self) -> bytes:
+        """What has arrived, or the next byte within the port timeout: read(4096) would wait
+        out the whole timeout for a short reply (1 s of the emulator's time at 20x)."""
+        return self.port.read(max(self.port.in_waiting, 1))
 
     def raw(self, text: str) -> None:
         """Write text as it is."""
@@ -58,7 +63,7 @@ class StageLink:
         end = time.monotonic() + timeout
         out: list[str] = []
         while time.monotonic() < end:
-            self.buf += self.port.read(4096)
+            self.buf += self._read()
             while b"\n" in self.buf:
                 line, self.buf = self.buf.split(b"\n", 1)
                 text = line.decode(errors="replace").strip()

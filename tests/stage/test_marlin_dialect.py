@@ -229,3 +229,19 @@ def test_g92_during_a_move_prints_where_the_steppers_are_now(stage):
     assert start < _counts(report)["A"] < end  # part way: the steppers, not the target
     stage.raw("M410\n")  # stop the long turn
     stage.until_ok()
+
+
+def test_a_slow_turn_runs_at_its_feedrate(stage):
+    """90 deg at F600 (10 deg/s, 89 steps/s) takes 9 s: Marlin's lowest step rate is
+    F_CPU / 500000 = 32 steps/s on the AVR since 2024; the emulator once floored it at the
+    older 120 and turned in 6.8 s."""
+    stage.send("G90")
+    stage.send("M400", timeout=60)
+    here = _pos(stage.send("M114")[0])["A"]
+    t0 = stage.clock()
+    stage.send(f"G1 A{here + 90:.2f} F600")
+    stage.send("M400", timeout=30 / stage.speed + 30)
+    took = stage.clock() - t0
+    assert 9.0 < took < 9.6, took
+    stage.send(f"G1 A{here:.2f} F{LIMITS.max_feedrate[3] * 60:.0f}")  # back where it was
+    stage.send("M400", timeout=60)

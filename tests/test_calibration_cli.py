@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 import tomllib
+from pathlib import Path
 
 import numpy as np
 from test_calibration import XR, N, V, synth
@@ -85,6 +86,10 @@ def test_the_same_data_in_hdf5_gives_the_same_result(tmp_path):
         assert r.returncode == 0, r.stderr
         got.append(json.loads(r.stdout))
         assert f'source = "{path}"' in (tmp_path / "c.toml").read_text()
+    # the second run kept the first result, renamed, instead of writing over it
+    first, second = (g.pop("previous") for g in got)
+    assert first is None and Path(second).name.startswith("c.") and \
+        f'source = "{raw}"' in Path(second).read_text()
     assert got[0] == got[1]
 
 

@@ -56,6 +56,12 @@ class FieldSpec:
             return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
         return None
 
+    def allowed(self) -> tuple[int, int]:
+        """The values the spec allows: its min/max where given, else its type's range."""
+        lo, hi = self.int_range() or (0, 0)
+        return (self.min if self.min is not None else lo), (self.max if self.max is not None
+                                                            else hi)
+
 
 @dataclass(frozen=True)
 class MessageSpec:

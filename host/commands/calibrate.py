@@ -79,11 +79,11 @@ def _scan(args: argparse.Namespace) -> None:
     from ..calibration.procedure import RigPlan, check_plan, scan_rig
     from ..links.config import load_config, resolve_port
     from ..links.safety import UnsafeMove, check_target
-    from ..links.sensor import SensorClient, config_range
+    from ..links.sensor import SensorClient
     from ..links.stage import StageClient
     from ..links.transport import LinkError
     from ..ranging.calibrate import RangingSetup
-    from .errors import CliError
+    from .errors import CliError, check_setting
 
     if args.at is None:
         raise CliError("give --at X Y Z: the stage position facing the tip (or the filament)")
@@ -99,9 +99,7 @@ def _scan(args: argparse.Namespace) -> None:
         check_target({"X": x, "Y": y, "Z": z}, load_machine())  # before a board is touched
     except ValueError as e:
         raise CliError(f"--at: {e}" if isinstance(e, UnsafeMove) else str(e)) from None
-    lo, hi = config_range("n_average")
-    if not lo <= args.average <= hi:
-        raise CliError(f"--average {args.average} is outside {lo}..{hi}")
+    check_setting("--average", "n_average", args.average)
     try:
         setup = RangingSetup.load(args.ranging)
     except ValueError as e:

@@ -160,16 +160,13 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     """Arm for N shots with a progress bar, then write them and report losses."""
     from tqdm import tqdm
 
-    from ..links.sensor import AcquisitionInterrupted, AcquisitionLost, SensorClient, config_range
-    from .errors import CliError
+    from ..links.sensor import AcquisitionInterrupted, AcquisitionLost, SensorClient
+    from .errors import CliError, check_setting
 
     if args.shots <= 0:
         raise CliError("--shots must be positive")
-    for flag, field in (("--samples", "n_samples"), ("--average", "n_average")):
-        value = getattr(args, flag[2:])
-        lo, hi = config_range(field)
-        if value is not None and not lo <= value <= hi:
-            raise CliError(f"{flag} {value} is outside {lo}..{hi}")
+    check_setting("--samples", "n_samples", args.samples)
+    check_setting("--average", "n_average", args.average)
     check_output(args.output, keep_existing=not args.force)  # before anything is measured
     sc = SensorClient(resolve_port("sensor", args.sensor, load_config(args.config)))
     try:

@@ -38,6 +38,17 @@ def check_output(path: Path, keep_existing: bool = False) -> None:
         raise CliError(f"cannot write {path}: no permission to write in {folder}")
 
 
+def check_setting(flag: str, field: str, value: int | None) -> None:
+    """CliError naming the flag if `value` (None: not given) is outside the range the
+    protocol spec allows for set_config's `field`; checked before a board is touched."""
+    from dmdsm.protocol import load_spec
+
+    lo, hi = next(f for f in load_spec().by_name["set_config"].fields
+                  if f.name == field).allowed()
+    if value is not None and not lo <= value <= hi:
+        raise CliError(f"{flag} {value} is outside {lo}..{hi}")
+
+
 def keep_previous(path: Path) -> Path | None:
     """Before a calibration is written over an earlier one, move the earlier one aside to
     NAME.YYYYmmdd-HHMMSS.SUFFIX (as Klipper keeps printer.cfg on SAVE_CONFIG); its new name,

@@ -90,10 +90,9 @@ def _check_procedure(args: argparse.Namespace) -> None:
     position it would visit outside the machine envelope."""
     from dmdsm.marlin_patch import load_machine
 
-    from ..links.safety import UnsafeMove, check_move
-    from ..links.sensor import config_range
+    from ..links.safety import UnsafeMove, check_target
     from ..ranging.procedure import positions
-    from .errors import CliError
+    from .errors import CliError, check_setting
 
     numbers = {"-x": args.x, "-y": args.y, "-z": args.z, "--step": args.step,
                "--start-distance": args.start_distance, "--temperature": args.temperature}
@@ -106,15 +105,13 @@ def _check_procedure(args: argparse.Namespace) -> None:
     if not fewest <= args.steps <= 1000 or not 1 <= args.lateral <= 100 or args.shots < 1:
         raise CliError(f"--steps must be {fewest}..1000, --lateral 1..100 and --shots at "
                        f"least 1")
-    lo, hi = config_range("n_average")
-    if not lo <= args.average <= hi:
-        raise CliError(f"--average {args.average} is outside {lo}..{hi}")
+    check_setting("--average", "n_average", args.average)
     where = positions({"X": args.x, "Y": args.y, "Z": args.z}, args.steps, args.step,
                       args.lateral)
     limits = load_machine()
-    for p in (where.min(axis=0), where.max(axis=0)):
+    for p in (where.min(axis=0), where.max(axis=0)):  # the box the path stays in
         try:
-            check_move(p, p, limits)
+            check_target(dict(zip("XYZ", p.tolist())), limits)
         except UnsafeMove as e:
             raise CliError(f"calibrate-range would leave the machine envelope: {e}; start "
                            f"elsewhere or take fewer or shorter steps") from None

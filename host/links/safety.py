@@ -37,15 +37,17 @@ class KeepOut:
                 & (h < self.height_mm + self.margin_mm))
 
 
-def check_target(target: dict[str, float | None], limits: MachineLimits) -> None:
+def check_target(target: dict[str, float | None], limits: MachineLimits,
+                 envelope: bool = True) -> None:
     """Raise UnsafeMove if an axis target (X, Y, Z in mm; A in deg) is not a finite number
-    or, for X, Y, Z, lies outside the machine envelope. None means the axis stays."""
+    or, for X, Y, Z and `envelope` (an absolute target), lies outside the machine envelope.
+    None means the axis stays."""
     for axis, value in target.items():
         if value is None:
             continue
         if not np.isfinite(value):
             raise UnsafeMove(f"{axis} {value} is not a position: give a finite number")
-        if axis in "XYZ":
+        if envelope and axis in "XYZ":
             i = "XYZ".index(axis)
             lo, hi = limits.min_pos[i], limits.max_pos[i]
             if not lo <= value <= hi:

@@ -32,23 +32,15 @@ BOOT_FAILURES = ("clock_failure", "power_failure", "adc_failure")  # arm NAKs: d
 CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
 
 
-def config_range_of(message: str, name: str) -> tuple[int, int]:
-    """The values the spec allows for field `name` of `message` (its min/max, else its
-    type's)."""
-    f = next(f for f in SPEC.by_name[message].fields if f.name == name)
-    lo, hi = f.int_range() or (0, 0)
-    return (f.min if f.min is not None else lo), (f.max if f.max is not None else hi)
-
-
 def config_range(name: str) -> tuple[int, int]:
     """The values the spec allows for set_config field `name`."""
-    return config_range_of("set_config", name)
+    return next(f for f in SPEC.by_name["set_config"].fields if f.name == name).allowed()
 
 
 def check_shots_fit(n_shots: int, n_samples: int, itemsize: int) -> None:
     """Refuse, before arming, an acquisition whose shots (kept in memory until written)
     would take more than half of the memory free now, or more than arm can count."""
-    hi = config_range_of("arm", "n_shots")[1]
+    hi = next(f for f in SPEC.by_name["arm"].fields if f.name == "n_shots").allowed()[1]
     if not 0 < n_shots <= hi:
         raise SensorError(f"{n_shots} shots: give 1..{hi} per acquisition")
     need = n_shots * n_samples * itemsize * 1.25  # samples, and the rows kept per shot

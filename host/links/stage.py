@@ -18,8 +18,6 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
-import numpy as np
-
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
 from .safety import UnsafeMove, check_target
@@ -307,12 +305,7 @@ class StageClient:
              relative: bool = False, wait: bool = False) -> None:
         """G1 to X Y Z (mm) and A (deg); queued unless wait. A target that is not a finite
         number, or (absolute) outside the machine envelope, raises UnsafeMove unsent."""
-        target = dict(zip("XYZA", (x, y, z, a)))
-        if relative:
-            check_target({k: v for k, v in target.items() if v is not None and
-                          not np.isfinite(v)}, self.limits)
-        else:
-            check_target(target, self.limits)
+        check_target(dict(zip("XYZA", (x, y, z, a))), self.limits, envelope=not relative)
         if feed_mm_min is not None and not 0 < feed_mm_min < float("inf"):
             raise UnsafeMove(f"feedrate {feed_mm_min} mm/min: give a positive number (Marlin "
                              f"would keep its last one)")

@@ -141,10 +141,8 @@ def _sensor_limits() -> dict[str, tuple[int, int]]:
     """samples and average: the ranges of set_config's n_samples and n_average."""
     from dmdsm.protocol import load_spec
 
-    (msg,) = [m for m in load_spec().messages if m.name == "set_config"]
-    f = {x.name: x for x in msg.fields}
-    return {"samples": (f["n_samples"].min, f["n_samples"].max),
-            "average": (f["n_average"].min, f["n_average"].max)}
+    f = {x.name: x for x in load_spec().by_name["set_config"].fields}
+    return {"samples": f["n_samples"].allowed(), "average": f["n_average"].allowed()}
 
 
 def load_plan(path: Path, **overrides: object) -> ScanPlan:

@@ -2,7 +2,8 @@
 error in the middle of a burst flushes only the bytes that had arrived, so the rest of the
 burst is read from mid-line (issue 20, item 11)."""
 
-from dmdsm.sim.boards.marlin import MarlinEmulator, checksum
+from dmdsm.marlin_patch import checksum
+from dmdsm.sim.boards.marlin import MarlinEmulator
 
 
 def numbered(n, cmd, good=True):

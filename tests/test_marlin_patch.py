@@ -1,13 +1,17 @@
 """The Marlin patch: every kind of edit, idempotence, refusals, and one source of truth."""
 
+import operator
 import shutil
 import subprocess
 import sys
+from functools import reduce
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from dmdsm.marlin_patch import load_machine
+from dmdsm.marlin_patch import checksum, load_machine, numbered
 from dmdsm.marlin_patch.apply import PatchError, apply_config, plan
 from dmdsm.marlin_patch.settings import SETTINGS_PATH, load_settings
 
@@ -115,7 +119,8 @@ def test_script_runs_standalone_with_one_line_errors(checkout, tmp_path):
 
 
 def test_the_emulator_follows_the_settings_file(tmp_path):
-    from dmdsm.sim.boards.marlin import MarlinEmulator, checksum
+    from dmdsm.marlin_patch import checksum
+    from dmdsm.sim.boards.marlin import MarlinEmulator
 
     changed = tmp_path / "settings.toml"
     changed.write_text(SETTINGS_PATH.read_text().replace(
@@ -141,3 +146,13 @@ def test_the_host_envelope_follows_the_settings_file(tmp_path):
     check_move(start, target, load_machine())
     with pytest.raises(UnsafeMove, match="X350 is outside the machine envelope"):
         check_move(start, target, load_machine(changed))
+
+
+@given(st.integers(0, 2**31 - 1), st.text(st.characters(min_codepoint=32, max_codepoint=126,
+                                                         exclude_characters="*;"), max_size=80))
+def test_a_numbered_line_carries_marlins_checksum(n, command):
+    # Marlin (GCodeQueue::get_serial_commands) XORs every byte before '*', then compares
+    line = numbered(n, command)
+    body, _, tail = line.rstrip("\n").rpartition("*")
+    assert body == f"N{n} {command}" and line.endswith("\n")
+    assert int(tail) == reduce(operator.xor, body.encode(), 0) == checksum(body) < 256

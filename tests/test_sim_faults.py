@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from dmdsm.marlin_patch import checksum
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
-from dmdsm.sim.boards.marlin import checksum
 from dmdsm.sim.servers.faults import parse_faults
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 

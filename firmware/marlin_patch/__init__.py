@@ -1,5 +1,7 @@
 """The Marlin patch for the Chiron + turntable, and the machine limits it defines."""
 
+from .dialect import MINIMAL_STEP_RATE, QUICK_STOP_CLEAN_S, checksum, numbered
 from .settings import MachineLimits, load_machine, load_settings
 
-__all__ = ["MachineLimits", "load_machine", "load_settings"]
+__all__ = ["MINIMAL_STEP_RATE", "QUICK_STOP_CLEAN_S", "MachineLimits", "checksum", "load_machine",
+           "load_settings", "numbered"]

@@ -6,6 +6,8 @@ import re
 
 import numpy as np
 
+from dmdsm.marlin_patch import QUICK_STOP_CLEAN_S
+
 FIRMWARE_NAME = "Marlin bugfix-2.1.x (dmdsm hil_sim)"
 Z_AFTER_HOMING_MM = 5.0  # the real Chiron build stands at Z 5.00 after G28 (issue 20)
 
@@ -36,7 +38,6 @@ def parse_words(cmd: str) -> tuple[str, dict[str, float | None]]:
     return code, {k: (float(v) if v else None) for k, v in rest}
 
 
-QUICK_STOP_CLEAN_S = 1.0  # Marlin's planner drops moves for 1000 ms after a quick stop
 # (cleaning_buffer_counter), and M410 answers only then: its ok came 1.03 s after it on the
 # real Marlin in simavr (issue 20 saw ~1.2 s)
 

@@ -18,10 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dmdsm.marlin_patch import MachineLimits
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE, MachineLimits
 
-MINIMAL_STEP_RATE = 32.0       # steps/s: Marlin's lowest step rate (stepper.h
-# minimal_step_rate = F_CPU / 500000 on the 16 MHz AVR since 2.1's #26881, 2024-07; it was 120)
 BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
 MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
 HISTORY = 16                    # finished blocks kept for position_at() and step_edges()
@@ -29,7 +27,12 @@ HISTORY = 16                    # finished blocks kept for position_at() and ste
 
 @dataclass
 class Move:
-    """One planner block: steps, speeds (mm/s), and once planned its profile in step rates."""
+    """One planner block: steps, speeds (mm/s), and once planned its profile in step rates.
+
+    Its twin is the host's `dmdsm.host.scan.fly.LineMotion` (one rest-to-rest line, all the
+    fly scan needs; the host may not import the emulator). The two are written apart on
+    purpose and held together by tests/test_fly_model.py
+    (`test_the_host_model_puts_each_instant_within_a_step_of_the_emulated_marlin`)."""
 
     start: np.ndarray    # steps
     target: np.ndarray   # steps

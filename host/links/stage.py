@@ -18,7 +18,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
-from dmdsm.marlin_patch import MachineLimits, load_machine
+from dmdsm.marlin_patch import MachineLimits, load_machine, numbered
 
 from .safety import UnsafeMove, check_target
 from .transport import LinkError, open_port
@@ -26,9 +26,9 @@ from .transport import LinkError, open_port
 OK_N = re.compile(r"^ok\s+N(\d+)(?:\s+P(\d+))?(?:\s+B(\d+))?")
 RESEND = re.compile(r"^(?:Resend|rs):?\s*N?(\d+)", re.I)
 POSITION = re.compile(r"([XYZA]):\s*(-?\d+(?:\.\d+)?)")
-RX_BUFFER = 127      # bytes Marlin's 128-byte ring takes before the oldest line is read
+RX_BUFFER = load_machine().rx_buffer_size - 1  # bytes the ring takes before a line is read
 LONG = ("G28", "M400", "G4", "G29")
-MAX_LINE = 95        # MAX_CMD_SIZE 96 less its terminator: Marlin cuts longer lines
+MAX_LINE = load_machine().max_cmd_size - 1  # MAX_CMD_SIZE less its terminator: longer is cut
 PROBE = "M114"       # numbered, harmless, answered with `ok N`
 BOOT_S = 3.0         # a board reset by the port opening: bootloader + boot banner
 M110_RETRY_S = 1.0   # M110 again after this long without its ok
@@ -47,14 +47,6 @@ class StageStats:
     probes: int = 0
     busy: int = 0
     errors: int = 0
-
-
-def checksum(line: str) -> int:
-    """XOR of the bytes of a line (Marlin's `*` checksum)."""
-    c = 0
-    for b in line.encode():
-        c ^= b
-    return c
 
 
 class StageClient:
@@ -111,8 +103,7 @@ class StageClient:
     def _send_line(self, n: int, cmd: str, line: str | None = None) -> None:
         """Send `N<n> cmd*<checksum>` (line: that text, already made) and keep it for resends."""
         if line is None:
-            body = f"N{n} {cmd}"
-            line = f"{body}*{checksum(body)}\n"
+            line = numbered(n, cmd)
         self.unacked[n] = line
         self._write(line)
         self.stats.lines += 1
@@ -203,8 +194,7 @@ class StageClient:
         self.unacked.clear()
         self.next_n = 1
         self.ignore_resend_of = None
-        body = "N0 M110 N0"
-        line = f"{body}*{checksum(body)}\n"
+        line = numbered(0, "M110 N0")
         self.unacked[0] = line
         try:
             # opening the port may reset the board (DTR: bootloader ~1-2 s, then its banner);
@@ -274,8 +264,7 @@ class StageClient:
                     and self._bytes_in_flight() + len(cmd) + 12 <= RX_BUFFER,
                     self.timeout_s, "no room in the command buffer")
         n = self.next_n  # numbered only now: probes while waiting take numbers too
-        body = f"N{n} {cmd}"
-        line = f"{body}*{checksum(body)}\n"
+        line = numbered(n, cmd)
         if len(line) - 1 > MAX_LINE:  # Marlin would cut it and lose the checksum: unsent
             raise StageError(f"G-code line too long for Marlin ({len(line) - 1} > {MAX_LINE} "
                              f"characters): {cmd[:40]}...; split it")

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MINIMAL_STEP_RATE = 32.0  # steps/s: Marlin's lowest step rate (stepper.h
-# minimal_step_rate = F_CPU / 500000 on the 16 MHz AVR since 2.1's #26881, 2024-07; it was 120)
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE
+
 SCALE_TOLERANCE = 0.01     # |measured / modelled duration - 1| above this: not the move we made
 CRUISE_TOLERANCE = 0.03    # |counted / planned advance per waveform - 1| within this: cruising
 
@@ -35,7 +35,13 @@ def ramp_mm(v_mm_s: float, accel_mm_s2: float, step_mm: float) -> float:
 @dataclass(frozen=True)
 class LineMotion:
     """Marlin's rest-to-rest move of one axis: x0 -> x1 (mm) at up to v (mm/s), accel a
-    (mm/s^2), steps_per_mm; positions in time since the first STEP pulse (s)."""
+    (mm/s^2), steps_per_mm; positions in time since the first STEP pulse (s).
+
+    Its twin is the emulator's planner block `dmdsm.sim.boards.stage.motion.Move` (the whole
+    planner: junctions, queued blocks); the host may not import the emulator, so the model is
+    written twice on purpose, and tests/test_fly_model.py
+    (`test_the_host_model_puts_each_instant_within_a_step_of_the_emulated_marlin`) holds the
+    two within a step of each other."""
 
     x0: float
     x1: float

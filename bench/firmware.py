@@ -2,7 +2,7 @@
 
 Shot rate is computed for the NUCLEO at 2 Mbaud (8N1: 200 000 B/s) from the exact frame size,
 measured on the ARM build under QEMU (1 kHz emulated laser, UART over TCP) and measured on the
-exact NUCLEO ELF on the rehosted H743 (hil_sim/boards/rehost: 1 kHz laser, USART3 at its BRR
+exact NUCLEO ELF on the rehosted H743 (hil_sim/boards/sensor/rehost: 1 kHz laser, USART3 at its BRR
 rate, in simulated time), for 1024 and 8192 samples, with and without on-board averaging.
 "Sustainable" = shots per second that reach the host as waveforms (averaged shots count
 n_average times); drops and sample-integrity faults are the device's own counters.
@@ -19,7 +19,7 @@ import numpy as np
 import serial
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
-from dmdsm.sim.boards.qemu import QemuSensor
+from dmdsm.sim.boards.sensor.qemu import QemuSensor
 
 REPO = Path(__file__).resolve().parents[1]
 FW = REPO / "firmware/stm32"

@@ -28,7 +28,7 @@ from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points, validate_block
 from dmdsm.host.scan.scanfile import read_scan
-from dmdsm.sim.boards.sensor import TICK_HZ
+from dmdsm.sim.boards.sensor.core_board import TICK_HZ
 from dmdsm.sim.servers.pty_server import PtyServer
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 
@@ -108,7 +108,7 @@ def fly_motion_s(plan: ScanPlan) -> float:
     from dmdsm.host.scan.fly_executor import fly_lines, fly_speed, line_ends
     from dmdsm.host.scan.plan import expand
     from dmdsm.marlin_patch import load_machine
-    from dmdsm.sim.boards.motion import BLOCK_DELAY_FOR_1ST_MOVE, Planner
+    from dmdsm.sim.boards.stage.motion import BLOCK_DELAY_FOR_1ST_MOVE, Planner
     from dmdsm.sim.physics.scene import TABLE_I_V, TABLE_I_XR
 
     machine = load_machine()

@@ -9,7 +9,7 @@ from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.scan.plan import ScanPlan
-from dmdsm.sim.boards.sensor import TICK_HZ
+from dmdsm.sim.boards.sensor.core_board import TICK_HZ
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}  # e mean, std (mm), paper §V-A2
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import serial
 
-from dmdsm.sim.boards.avr_stage import REPO, AvrStage, AvrStageError, AxisPins
+from dmdsm.sim.boards.stage.avr_pty import REPO, AvrStage, AvrStageError, AxisPins
 
 ELF = REPO / "build/avr/uart_pins_test.elf"
 X = (AxisPins("X", "F0", "F1", "E5", trigger_steps=0),)
@@ -83,7 +83,7 @@ def test_a_bad_firmware_file_is_one_clear_error(tmp_path):
 # the same program as the stage board of a Simulation: `dmdsm sim --stage-firmware ELF`
 
 def lockstep_board(**kw):
-    from dmdsm.sim.boards.avr_board import AvrStageBoard
+    from dmdsm.sim.boards.stage.avr_lockstep import AvrStageBoard
     return AvrStageBoard(ELF, axes=(AxisPins("X", "F0", "F1", "E5", trigger_steps=-80),
                                     AxisPins("Y", "F6", "F7", "-"), AxisPins("Z", "C1", "C3", "-"),
                                     AxisPins("A", "A4", "A6", "-")), **kw)
@@ -124,7 +124,7 @@ def test_lockstep_echo_steps_and_their_cycle_exact_times():
 
 
 def test_lockstep_reset_drops_bytes_meanwhile_and_lost_oks_are_whole_lines():
-    from dmdsm.sim.boards.marlin import StageFaults
+    from dmdsm.sim.boards.stage.marlin import StageFaults
     b = lockstep_board(faults=StageFaults(lose_next_oks=1))
     try:
         out, t = run(b, 0.0, 0.002)

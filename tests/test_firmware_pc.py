@@ -3,7 +3,7 @@
 import numpy as np
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
-from dmdsm.sim.boards.firmware_core import FirmwareCore
+from dmdsm.sim.boards.sensor.firmware_core import FirmwareCore
 
 SPEC = load_spec()
 

@@ -14,7 +14,7 @@ from dmdsm.host.scan.fly_executor import FlyLine, LineRejected, _measure, stradd
 from dmdsm.host.scan.plan import PlanError, Point, ScanPlan
 from dmdsm.host.scan.session import checked_points
 from dmdsm.marlin_patch import load_machine
-from dmdsm.sim.boards.motion import Planner
+from dmdsm.sim.boards.stage.motion import Planner
 from dmdsm.sim.physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR
 
 M = load_machine()

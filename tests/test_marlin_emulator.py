@@ -3,7 +3,7 @@ error in the middle of a burst flushes only the bytes that had arrived, so the r
 burst is read from mid-line (issue 20, item 11)."""
 
 from dmdsm.marlin_patch import checksum
-from dmdsm.sim.boards.marlin import MarlinEmulator
+from dmdsm.sim.boards.stage.marlin import MarlinEmulator
 
 
 def numbered(n, cmd, good=True):

@@ -120,7 +120,7 @@ def test_script_runs_standalone_with_one_line_errors(checkout, tmp_path):
 
 def test_the_emulator_follows_the_settings_file(tmp_path):
     from dmdsm.marlin_patch import checksum
-    from dmdsm.sim.boards.marlin import MarlinEmulator
+    from dmdsm.sim.boards.stage.marlin import MarlinEmulator
 
     changed = tmp_path / "settings.toml"
     changed.write_text(SETTINGS_PATH.read_text().replace(

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dmdsm.host.ranging.matched_filter import MatchedFilter, gaussian_pulse
-from dmdsm.sim.boards.sensor import ADC_RATE_HZ
+from dmdsm.sim.boards.sensor.core_board import ADC_RATE_HZ
 from dmdsm.sim.physics.signals import MATERIALS, SensorModel, _pulse, received, through
 
 

@@ -11,7 +11,7 @@ from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.scan.executor import PointRanger
 from dmdsm.host.scan.plan import ScanPlan, expand
 
-from ..boards.sensor import TICK_HZ
+from ..boards.sensor.core_board import TICK_HZ
 from ..physics.objects import aluminium_block
 from ..physics.scene import Scene
 from .rig_data import DirectRig

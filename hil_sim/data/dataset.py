@@ -24,7 +24,7 @@ from dmdsm.host.scan.executor import PointRanger
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.scanfile import PHASES, ScanWriter
 
-from ..boards.sensor import ADC_RATE_HZ, TICK_HZ
+from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ
 from ..physics.objects import HOUSEHOLD, bounding_size, household
 from ..physics.scene import Scene, table_frame
 from ..physics.signals import MATERIALS, SensorModel, received, synthesize, to_adc

@@ -20,7 +20,7 @@ import numpy as np
 from dmdsm.host.calibration.procedure import RigPlan, scan_rig
 from dmdsm.host.calibration.rig_file import append_rows
 
-from ..boards.sensor import ADC_RATE_HZ, TICK_HZ
+from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ
 from ..physics.objects import rig_horizontal, rig_vertical
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise, table_frame
 from ..physics.signals import SensorModel, synthesize, to_adc

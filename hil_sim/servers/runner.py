@@ -14,16 +14,16 @@ import numpy as np
 
 from dmdsm.marlin_patch import load_machine
 
-from ..boards.marlin import MarlinEmulator, StageFaults
-from ..boards.sensor import SensorBoard
+from ..boards.sensor.core_board import SensorBoard
+from ..boards.stage.marlin import MarlinEmulator, StageFaults
 from ..physics.objects import SCENES
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise
 from ..physics.signals import SensorModel, arrival_times_us
 from .faults import FaultyChannel, LinkFaults, parse_faults
 
 if TYPE_CHECKING:
-    from ..boards.avr_board import AvrStageBoard
-    from ..boards.rehost.board import RehostedSensor
+    from ..boards.sensor.rehost.board import RehostedSensor
+    from ..boards.stage.avr_lockstep import AvrStageBoard
 
 STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
 
@@ -46,10 +46,10 @@ class SimConfig:
     objects: list = field(default_factory=list)  # extra SceneObjects (tests)
     frozen_noise: bool = False             # same pose + config -> same waveforms
     # "" runs the firmware core (PC build); "nucleo" or an ELF path runs that NUCLEO ELF
-    # on the rehosted H743 (hil_sim/boards/rehost)
+    # on the rehosted H743 (hil_sim/boards/sensor/rehost)
     sensor_firmware: str = ""
     # "" runs the Marlin emulator; an AVR ELF path runs that stage firmware (Marlin built from
-    # firmware/marlin_patch) under simavr in lock-step (hil_sim/boards/avr_board.py)
+    # firmware/marlin_patch) under simavr in lock-step (hil_sim/boards/stage/avr_lockstep.py)
     stage_firmware: str = ""
     # the motion-sync wire from the stage's X STEP line to the sensor board (docs/firmware.md)
     sync_wire: bool = True
@@ -79,7 +79,7 @@ class Simulation:
         self.model = SensorModel(temperature_c=cfg.temperature_c)
         self.stage: MarlinEmulator | AvrStageBoard
         if cfg.stage_firmware:
-            from ..boards.avr_board import AvrStageBoard
+            from ..boards.stage.avr_lockstep import AvrStageBoard
             self.stage = AvrStageBoard(cfg.stage_firmware, self.limits, seed=cfg.seed,
                                        faults=stage_faults)
         else:
@@ -87,7 +87,7 @@ class Simulation:
         self.sensor: SensorBoard | RehostedSensor
         sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
-            from ..boards.rehost.board import RehostedSensor  # unicorn only when asked
+            from ..boards.sensor.rehost.board import RehostedSensor  # unicorn only when asked
             self.sensor = RehostedSensor(self.scene, self.pose, self.model, seed=cfg.seed,
                                          rep_rate_hz=cfg.rep_rate_hz,
                                          elf=cfg.sensor_firmware, sync_edges=sync)

@@ -2,7 +2,7 @@
 
 Without a board the suite runs twice: against the ARM build in QEMU (mps2-an500, the core with
 a test-pattern ADC) and against the exact NUCLEO ELF on the rehosted H743 (unicorn with
-peripheral models, hil_sim/boards/rehost), served on a pseudo-terminal as `dmdsm sim
+peripheral models, hil_sim/boards/sensor/rehost), served on a pseudo-terminal as `dmdsm sim
 --sensor-firmware nucleo` serves it. A hardware rule the NUCLEO build breaks fails the run.
 """
 
@@ -12,7 +12,7 @@ import threading
 import pytest
 from link import Link
 
-from dmdsm.sim.boards.qemu import QemuSensor
+from dmdsm.sim.boards.sensor.qemu import QemuSensor
 from dmdsm.sim.servers.pty_server import PtyServer
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 

@@ -6,7 +6,7 @@ import pytest
 
 from dmdsm.host.links.stage import StageClient, StageError
 from dmdsm.host.links.transport import LinkError
-from dmdsm.sim.boards.marlin_gcode import parse_words
+from dmdsm.sim.boards.stage.marlin_gcode import parse_words
 
 
 def test_home_move_where(emulator):

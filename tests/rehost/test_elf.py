@@ -5,7 +5,7 @@ from pathlib import Path
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from dmdsm.sim.boards.rehost.h743 import load_elf
+from dmdsm.sim.boards.sensor.rehost.h743 import load_elf
 
 REPO = Path(__file__).resolve().parents[2]
 ELF = (REPO / "firmware/stm32/build/qemu_an500/firmware.elf").read_bytes()[:4096]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
-from dmdsm.sim.boards.rehost.board import RehostedSensor
+from dmdsm.sim.boards.sensor.rehost.board import RehostedSensor
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 SPEC = load_spec()

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dmdsm.sim.boards.rehost import H743, RuleViolation
+from dmdsm.sim.boards.sensor.rehost import H743, RuleViolation
 
 
 def run(elf, seconds=0.01, **kw) -> H743:

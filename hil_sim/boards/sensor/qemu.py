@@ -8,7 +8,7 @@ import subprocess
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ELF = REPO / "firmware/stm32/build/qemu_an500/firmware.elf"
 
 

@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..physics.scene import Hit, Scene
-from ..physics.signals import SensorModel, synthesize, to_adc
+from ...physics.scene import Hit, Scene
+from ...physics.signals import SensorModel, synthesize, to_adc
 from .firmware_core import FirmwareCore
 
 TICK_HZ = 240_000_000

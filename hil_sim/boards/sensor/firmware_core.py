@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 LIB_PATH = REPO / "firmware/stm32/build/pc/libdmdsm_core.so"
 CAPTURE_OVERRUN, CAPTURE_INTEGRITY = 1, 2  # enum dmdsm_capture (firmware/stm32/core/core.h)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 HARNESS = Path(os.environ.get("DMDSM_STAGE_HARNESS", REPO / "build/avr/stage_harness"))
 
 

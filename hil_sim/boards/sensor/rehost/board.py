@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ...physics.scene import Hit, Scene
-from ...physics.signals import SensorModel, synthesize, to_adc
-from ..sensor import SensorBoard
+from ....physics.scene import Hit, Scene
+from ....physics.signals import SensorModel, synthesize, to_adc
+from ..core_board import SensorBoard
 from .bus import RuleViolation
 from .h743 import H743
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[4]
 NUCLEO_ELF = REPO / "firmware/stm32/build/nucleo_h743zi/firmware.elf"
 PULSE_S = 100e-9
 POWER_ON_S = 0.02  # the firmware runs this long before the simulation's time 0

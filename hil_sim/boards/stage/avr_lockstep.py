@@ -12,7 +12,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
-from .avr_stage import HARNESS, AvrStageError, AxisPins, chiron_axes, close_pipes, quit_harness
+from .avr_pty import HARNESS, AvrStageError, AxisPins, chiron_axes, close_pipes, quit_harness
 from .marlin import StageFaults
 
 F_CPU_HZ = 16_000_000  # the Trigorilla's crystal

@@ -21,7 +21,7 @@ PROTO_H := protocol/c/dmdsm_frame.h protocol/c/dmdsm_spec.h
 CORE_C := $(wildcard firmware/stm32/core/*.c)
 CORE_H := $(wildcard firmware/stm32/core/*.h)
 
-.PHONY: all deps venv build firmware avr test test-c fuzz lint gen-check gen bench demo clean \
+.PHONY: all deps venv build firmware avr test test-fast index test-c fuzz lint gen-check gen bench demo clean \
   check-marlin
 
 all: build
@@ -149,6 +149,14 @@ test: deps
 	wait $$demo || drc=$$?; \
 	echo "---- tests/demo (the full demo, run beside the others)"; cat build/test-demo.log; \
 	exit $$(( rc || drc ))
+
+# the inner loop: every test that does not serve a board in real time (`-m "not realtime"`)
+test-fast: deps build
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 2 -m "not realtime" \
+	  --ignore=tests/demo
+
+index: deps
+	$(PY) tests/index.py
 
 bench: deps firmware
 	$(PY) bench/protocol.py

@@ -15,7 +15,6 @@ import json
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -29,7 +28,7 @@ from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points, validate_block
 from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.sim.boards.sensor.core_board import TICK_HZ
-from dmdsm.sim.servers.pty_server import PtyServer
+from dmdsm.sim.servers.emulator import Emulator
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
@@ -47,10 +46,8 @@ def run(mode: str, speed: float, plan: ScanPlan, seed: int, out: Path) -> dict:
         return S, theta
 
     sim.sensor.pose = recording
-    server = PtyServer(sim, speed=speed)
-    th = threading.Thread(target=server.serve_forever, daemon=True)
-    th.start()
-    S, T = server.ports["sensor"].name_for_host, server.ports["stage"].name_for_host
+    emu = Emulator(sim=sim, speed=speed).start()
+    S, T = emu.sensor, emu.stage
     try:
         with StageClient(T) as st:
             st.home()
@@ -78,8 +75,7 @@ def run(mode: str, speed: float, plan: ScanPlan, seed: int, out: Path) -> dict:
                            capture_output=True, text=True, timeout=3600)
         sim_dt = sim.t - sim_t0
     finally:
-        server.stop()
-        th.join(5)
+        emu.stop()
     if r.returncode != 0:
         raise SystemExit(f"{mode} scan failed: {r.stderr.strip()[-300:]}")
     summary = json.loads(r.stdout.splitlines()[-1])

@@ -11,21 +11,18 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import threading
 import time
 
 from dmdsm.host.links.stage import StageClient
-from dmdsm.sim.servers.pty_server import PtyServer
-from dmdsm.sim.servers.runner import SimConfig, Simulation
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 
 def measure(elf: str, moves: int, losses: int) -> dict:
     """Moves/s for `moves` pipelined 0.2 mm moves and the median recovery time (s) of
     `losses` lost oks, on one stage (the emulator if elf is empty)."""
-    sim = Simulation(SimConfig(seed=1, stage_firmware=elf))
-    server = PtyServer(sim, speed=1.0)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
+    emu = Emulator(SimConfig(seed=1, stage_firmware=elf), speed=1.0).start()
+    sim, server = emu.sim, emu.server
     try:
         st = StageClient(server.ports["stage"].name_for_host, timeout_s=0.5)
         st.send("G92 X100 Y100 Z100 A0")
@@ -48,9 +45,7 @@ def measure(elf: str, moves: int, losses: int) -> dict:
         return {"moves_per_s": rate, "recover_s": statistics.median(recover),
                 "recover_max_s": max(recover)}
     finally:
-        server.stop()
-        thread.join(5)
-        sim.close()
+        emu.stop()
 
 
 def main() -> None:

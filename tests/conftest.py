@@ -1,4 +1,9 @@
-"""Shared fixtures: hypothesis profile and the ASan-built C protocol tool."""
+"""Shared fixtures: hypothesis profile, the ASan-built C protocol tool, and the `realtime` mark.
+
+A test that serves the emulator in wall-clock time (an `Emulator` thread, `dmdsm sim` or the
+demo in a subprocess, a board under test) is slow and is marked `realtime`; `make test-fast`
+leaves those out. Tests that use the emulator fixtures are marked here; any other test that
+starts an `Emulator` in this process without the mark fails, so the fast loop stays fast."""
 
 import os
 import subprocess
@@ -24,3 +29,46 @@ def proto_tool() -> Path:
 
 
 from emulator_fixture import emulator  # noqa: E402,F401  (hil_sim on ptys, one per test)
+
+from dmdsm.sim.servers.emulator import Emulator  # noqa: E402
+
+# fixtures that serve a board in real time (tests/emulator_fixture.py, tests/stage/conftest.py,
+# tests/conformance/conftest.py)
+REALTIME_FIXTURES = {"emulator", "stage_url", "sensor_url", "stage_sim"}
+_running: dict = {"item": None, "unmarked_starts": []}
+
+
+def pytest_collection_modifyitems(items: list) -> None:
+    """Mark every test that uses a real-time fixture `realtime`."""
+    for item in items:
+        if REALTIME_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.realtime)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item) -> None:
+    """Remember which test runs, before its fixtures start anything."""
+    _running["item"] = item
+    _running["unmarked_starts"].clear()
+
+
+_start = Emulator.start
+
+
+def _checked_start(self: Emulator) -> Emulator:
+    item = _running["item"]
+    if item is not None and item.get_closest_marker("realtime") is None:
+        _running["unmarked_starts"].append(item.nodeid)
+    return _start(self)
+
+
+Emulator.start = _checked_start  # type: ignore[method-assign]
+
+
+@pytest.fixture(autouse=True)
+def _realtime_is_marked():
+    """Fail a test that served the emulator in real time without the `realtime` mark."""
+    yield
+    assert not _running["unmarked_starts"], (
+        "this test serves the emulator in real time: mark it @pytest.mark.realtime "
+        "(or use the emulator fixture)")

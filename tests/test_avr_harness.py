@@ -148,6 +148,7 @@ def test_a_stage_firmware_that_halts_is_one_clear_error():
         b.close()
 
 
+@pytest.mark.realtime
 def test_sim_cli_runs_a_stage_firmware_and_refuses_a_bad_one(tmp_path):
     import json
     import subprocess

@@ -4,7 +4,6 @@ one-modality variants, and live prediction through the emulated sensor."""
 
 import json
 import shutil
-import threading
 
 import h5py
 import numpy as np
@@ -23,8 +22,8 @@ from dmdsm.sim.data.dataset import make_database, true_setup
 from dmdsm.sim.physics.objects import bounding_size, household
 from dmdsm.sim.physics.scene import TABLE_I_V, TABLE_I_XR
 from dmdsm.sim.physics.signals import SensorModel
-from dmdsm.sim.servers.pty_server import PtyServer
-from dmdsm.sim.servers.runner import SimConfig, Simulation
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 ARTIFICIAL = ("aluminium", "foam", "glass", "paper", "plastic", "steel")
 DISTINCT = ("aluminium", "foam", "glass", "paper", "steel")  # the emulator's plastic ~ apple
@@ -148,28 +147,23 @@ def test_mixed_sample_rates_are_refused(db, tmp_path):
         assemble([scans[0], other])
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("name", ["glass_jar", "foam_block", "paper_cup"])
 def test_live_prediction_through_the_emulated_sensor(name, model, tmp_path, capsys):
     """glass: US alone, foam: OA alone (lone pulses of unknown modality), paper: both."""
-    server = PtyServer(Simulation(SimConfig(scene=name, seed=5)), speed=50.0)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
+    with Emulator(SimConfig(scene=name, seed=5), speed=50.0) as emu:
         true_setup(SensorModel()).save(tmp_path / "ranging.json")
         w, d, h = bounding_size(household(name)[0])
         v = TABLE_I_V / np.linalg.norm(TABLE_I_V)
         at = TABLE_I_XR + np.array([0.0, 0.0, 0.4 * h]) - (max(w, d) / 2 + 8) * v
-        stage = StageClient(server.ports["stage"].name_for_host)
+        stage = StageClient(emu.stage)
         stage.home()
         stage.move(x=at[0], y=at[1], z=at[2])
         stage.wait()
         stage.close()
         rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--sensor",
-                           server.ports["sensor"].name_for_host, "--ranging",
+                           emu.sensor, "--ranging",
                            str(tmp_path / "ranging.json"), "--shots", "6", "--json")
-    finally:
-        server.stop()
-        thread.join(5)
     assert rc == 0, err
     got = json.loads(out)
     material = household(name)[0].material

@@ -8,9 +8,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest  # noqa: E402
 import serial
 
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
+
+pytestmark = pytest.mark.realtime  # serves the emulator in a subprocess, in real time
 
 
 def interruptible():

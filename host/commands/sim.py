@@ -40,8 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_sim(args: argparse.Namespace) -> int:
     """Run until Ctrl-C (or SIGTERM)."""
     from dmdsm.sim.physics.objects import SCENES
-    from dmdsm.sim.servers.pty_server import PtyServer
-    from dmdsm.sim.servers.runner import SimConfig, Simulation
+    from dmdsm.sim.servers.emulator import Emulator
+    from dmdsm.sim.servers.runner import SimConfig
 
     from .errors import CliError
 
@@ -51,15 +51,16 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if args.speed <= 0:
         raise CliError("--speed must be positive")
     try:
-        sim = Simulation(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
-                                   temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
-                                   sensor_link_bytes_per_s=args.sensor_link,
-                                   sensor_firmware=args.sensor_firmware,
-                                   stage_firmware=args.stage_firmware))
+        emu = Emulator(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
+                                 temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
+                                 sensor_link_bytes_per_s=args.sensor_link,
+                                 sensor_firmware=args.sensor_firmware,
+                                 stage_firmware=args.stage_firmware),
+                       speed=args.speed, link_dir=args.link_dir)
     except (ValueError, TypeError, OSError, RuntimeError) as e:
         raise CliError(str(e)) from None
-    server = PtyServer(sim, speed=args.speed, link_dir=args.link_dir)
-    ports = {name: p.name_for_host for name, p in server.ports.items()}
+    sim, server = emu.sim, emu.server
+    ports = {"sensor": emu.sensor, "stage": emu.stage}
     if args.json:
         print(json.dumps({"sensor": ports["sensor"], "stage": ports["stage"],
                           "scene": args.scene, "seed": args.seed}), flush=True)
@@ -74,13 +75,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if args.sensor_firmware:
         threading.Thread(target=_watch_rules, args=(sim, server), daemon=True).start()
     try:
-        server.serve_forever()
+        emu.serve()  # closes the simulation when it returns
     except KeyboardInterrupt:
         pass
     except RuntimeError as e:  # the stage firmware's harness ended or the firmware crashed
         raise CliError(f"the stage firmware stopped: {e}") from None
-    finally:
-        sim.close()
     broken = getattr(sim.sensor, "violation", None)
     if broken is not None:
         raise CliError(f"the sensor firmware broke a hardware rule and halted: {broken}")

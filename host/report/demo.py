@@ -14,7 +14,6 @@ import contextlib
 import io
 import json
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -39,17 +38,16 @@ class Demo:
 
     def __init__(self, out: Path, quick: bool, speed: float,
                  command: Callable[[list[str]], int], stage_firmware: str = "") -> None:
-        from dmdsm.sim.servers.pty_server import PtyServer
-        from dmdsm.sim.servers.runner import SimConfig, Simulation
+        from dmdsm.sim.servers.emulator import Emulator
+        from dmdsm.sim.servers.runner import SimConfig
 
         self.out, self.quick, self.command = out, quick, command
         self.step_points_per_s: float | None = None  # the block's step-and-shoot rate
         self.rates: dict[str, float] = {}  # the household set's points/s per scan mode
-        self.sim = Simulation(SimConfig(scene="aluminium_block", seed=7,
-                                        stage_firmware=stage_firmware))
-        self.server = PtyServer(self.sim, speed=speed, link_dir=str(out / "ports"))
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
+        self.emulator = Emulator(SimConfig(scene="aluminium_block", seed=7,
+                                           stage_firmware=stage_firmware),
+                                 speed=speed, link_dir=str(out / "ports")).start()
+        self.sim = self.emulator.sim
         self.ports = ["--sensor", str(out / "ports" / "sensor"),
                       "--stage", str(out / "ports" / "stage")]
 
@@ -70,9 +68,7 @@ class Demo:
 
     def close(self) -> None:
         """Stop the emulator."""
-        self.server.stop()
-        self.thread.join(5)
-        self.sim.close()
+        self.emulator.stop()
 
 
 def _truth(sim: object) -> dict[str, np.ndarray]:

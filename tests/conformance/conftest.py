@@ -7,14 +7,13 @@ peripheral models, hil_sim/boards/sensor/rehost), served on a pseudo-terminal as
 """
 
 import os
-import threading
 
 import pytest
 from link import Link
 
 from dmdsm.sim.boards.sensor.qemu import QemuSensor
-from dmdsm.sim.servers.pty_server import PtyServer
-from dmdsm.sim.servers.runner import SimConfig, Simulation
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 TARGETS = ["board"] if os.environ.get("DMDSM_SENSOR_PORT") else ["qemu", "nucleo-rehost"]
 
@@ -28,15 +27,10 @@ def sensor_url(request):
         with QemuSensor() as qemu:
             yield qemu.url
     else:
-        sim = Simulation(SimConfig(sensor_firmware="nucleo"))
-        sim.advance(0.02)  # boot first: bytes reaching USART3 before it is enabled are lost
-        server = PtyServer(sim)
-        thread = threading.Thread(target=server.serve_forever, daemon=True)
-        thread.start()
-        yield server.ports["sensor"].name_for_host
-        server.stop()
-        thread.join(5)
-        assert sim.sensor.violation is None, f"NUCLEO firmware: {sim.sensor.violation}"
+        # boot first: bytes reaching USART3 before it is enabled are lost
+        with Emulator(SimConfig(sensor_firmware="nucleo"), boot_s=0.02) as emu:
+            yield emu.sensor
+        assert emu.sim.sensor.violation is None, f"NUCLEO firmware: {emu.sim.sensor.violation}"
 
 
 @pytest.fixture

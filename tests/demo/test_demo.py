@@ -6,6 +6,9 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest  # noqa: E402
+
+pytestmark = pytest.mark.realtime  # serves the emulator in a subprocess, in real time
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
 

@@ -3,14 +3,13 @@ under simavr (DMDSM_STAGE_FIRMWARE=Marlin.elf, as `make check-marlin` runs it) o
 emulator, each on a pty."""
 
 import os
-import threading
 import time
 
 import pytest
 from stage_link import StageLink
 
-from dmdsm.sim.servers.pty_server import PtyServer
-from dmdsm.sim.servers.runner import SimConfig, Simulation
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 SPEED = 20.0  # simulated seconds per wall second for the emulator
 
@@ -24,14 +23,8 @@ def stage_url():
         return
     elf = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
     speed = 1.0 if elf else SPEED  # simavr runs Marlin at about twice real time at most
-    sim = Simulation(SimConfig(seed=1, stage_firmware=elf))
-    server = PtyServer(sim, speed=speed)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    yield server.ports["stage"].name_for_host, speed, lambda: sim.t  # simulated seconds
-    server.stop()
-    thread.join(5)
-    sim.close()
+    with Emulator(SimConfig(seed=1, stage_firmware=elf), speed=speed) as emu:
+        yield emu.stage, speed, lambda: emu.sim.t  # simulated seconds
 
 
 @pytest.fixture

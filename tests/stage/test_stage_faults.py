@@ -4,7 +4,6 @@ exactly once and in order, as read from the steps the stage made (the firmware's
 the emulator's log), and a lost `ok` costs about one probe timeout."""
 
 import os
-import threading
 import time
 
 import numpy as np
@@ -12,8 +11,8 @@ import pytest
 
 from dmdsm.host.links.stage import StageClient, StageError
 from dmdsm.marlin_patch import load_machine
-from dmdsm.sim.servers.pty_server import PtyServer
-from dmdsm.sim.servers.runner import SimConfig, Simulation
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 ELF = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
 SPEED = 1.0 if ELF else 5.0  # simavr runs Marlin at about twice real time at most
@@ -26,18 +25,14 @@ def stage_sim():
     running = []
 
     def start(faults: str = "", seed: int = 3):
-        sim = Simulation(SimConfig(seed=seed, faults=faults, stage_firmware=ELF))
-        server = PtyServer(sim, speed=SPEED)
-        thread = threading.Thread(target=server.serve_forever, daemon=True)
-        thread.start()
-        running.append((sim, server, thread))
-        return sim, server, server.ports["stage"].name_for_host
+        emu = Emulator(SimConfig(seed=seed, faults=faults, stage_firmware=ELF),
+                       speed=SPEED).start()
+        running.append(emu)
+        return emu.sim, emu.server, emu.stage
 
     yield start
-    for sim, server, thread in running:
-        server.stop()
-        thread.join(5)
-        sim.close()
+    for emu in running:
+        emu.stop()
 
 
 def x_runs(sim) -> list[int]:

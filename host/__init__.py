@@ -3,7 +3,9 @@
 The layers, top to bottom (docs/architecture.md): `commands` (the `dmdsm` command) ->
 `report` -> `classify` -> `scan` -> `calibration` -> `ranging` -> `links` -> `files`.
 This face exports the objects a notebook composes; they load on first use, so importing
-one submodule does not import the whole pipeline.
+one submodule does not import the whole pipeline. The procedures take any stage and sensor
+that satisfy the Protocols Stage / StageMotion and Sensor / ShotSensor / StreamSensor (the
+clients do; so may a notebook's own simulation).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ __version__ = "0.1.0"
 
 _EXPORTS = {  # name -> subpackage that defines it
     "SensorClient": "links", "StageClient": "links", "LinkError": "links",
-    "UnsafeMove": "links",
+    "UnsafeMove": "links", "Stage": "links", "StageMotion": "links", "Sensor": "links",
+    "ShotSensor": "links", "StreamSensor": "links",
     "RangingSetup": "ranging", "MatchedFilter": "ranging", "calibrate_range": "ranging",
     "load_calibration": "calibration", "solve": "calibration", "read_raw": "calibration",
     "center_points": "calibration", "CalibrationError": "calibration",
@@ -25,7 +28,8 @@ _EXPORTS = {  # name -> subpackage that defines it
     "load_model": "classify", "save_model": "classify",
 }
 __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literally
-    "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "RangingSetup",
+    "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "Stage",
+    "StageMotion", "Sensor", "ShotSensor", "StreamSensor", "RangingSetup",
     "MatchedFilter", "calibrate_range", "load_calibration", "solve", "read_raw", "center_points",
     "CalibrationError", "ScanPlan", "load_plan", "run_plan", "read_scan", "scan_points",
     "validate_block", "list_scans", "predict_scan", "assemble", "fit", "load_model", "save_model",
@@ -34,7 +38,17 @@ __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literal
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __getattr__
     from .calibration import CalibrationError, center_points, load_calibration, read_raw, solve
     from .classify import assemble, fit, load_model, predict_scan, save_model
-    from .links import LinkError, SensorClient, StageClient, UnsafeMove
+    from .links import (
+        LinkError,
+        Sensor,
+        SensorClient,
+        ShotSensor,
+        Stage,
+        StageClient,
+        StageMotion,
+        StreamSensor,
+        UnsafeMove,
+    )
     from .ranging import MatchedFilter, RangingSetup, calibrate_range
     from .scan import (
         ScanPlan,

@@ -1,6 +1,6 @@
 """Fly scanning's pure part against the emulator's Marlin planner: the host's trajectory model
-places a shot where the steppers were, the swept path is checked with its ramps, and the
-waveforms whose footprint takes in a depth edge are found."""
+places a shot where the steppers were, and the swept path is checked with its ramps (the fly
+executor's own tests: tests/test_fly_executor.py)."""
 
 import numpy as np
 import pytest
@@ -8,10 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dmdsm.host.links.safety import UnsafeMove
-from dmdsm.host.links.sensor import ClockSync
 from dmdsm.host.scan.fly import LineMotion, at_line_speed, counted_x, place_shots, ramp_mm
-from dmdsm.host.scan.fly_executor import FlyLine, LineRejected, _measure, straddles
-from dmdsm.host.scan.plan import PlanError, Point, ScanPlan
+from dmdsm.host.scan.plan import PlanError, ScanPlan
 from dmdsm.host.scan.session import checked_points
 from dmdsm.marlin_patch import load_machine
 from dmdsm.sim.boards.stage.motion import Planner
@@ -125,13 +123,6 @@ def test_only_waveforms_moving_at_the_line_speed_count_as_cruising():
     assert ok.tolist() == [False, False, True] + [True] * 7 + [False, False]
 
 
-def test_a_waveform_next_to_a_depth_edge_or_a_miss_is_dropped():
-    x = np.arange(10.0)
-    d = np.array([np.nan, 20.0, 20.1, 20.0, 20.1, 35.0, 35.1, 35.0, 35.1, 35.0])
-    bad = straddles(d, x, 3.0)
-    assert bad.tolist() == [False, True, False, False, True, True, False, False, False, False]
-
-
 def test_a_fly_plan_too_fast_for_the_x_axis_is_refused():
     with pytest.raises(PlanError, match="above the X axis"):
         ScanPlan("b", mode="fly", step_mm=4.0, average=8).validate()  # 500 mm/s
@@ -149,89 +140,3 @@ def test_the_fly_path_is_checked_with_its_ramps():
     assert ramp_mm(1000 / 12, ACCEL, 1.0) > 5
     with pytest.raises(UnsafeMove, match="line 0's run-out end .*machine envelope"):
         checked_points(fly, cal)
-
-
-class FakeSensor:
-    """A sensor board streaming waveforms on a clock of `rate` ticks/s, for _measure's checks."""
-
-    def __init__(self, motion, jump_s=0.0, edges_off=0):
-        from collections import deque
-        from types import SimpleNamespace
-
-        self.ns = SimpleNamespace
-        self.identity = SimpleNamespace(tick_hz=240_000_000)
-        self.clock = ClockSync(offset_ticks=5e9, ticks_per_s=240e6, residual_s=2e-5,
-                               rtt_s=1e-3)
-        self.motion, self.jump_s, self.edges_off = motion, jump_s, edges_off
-        self.motion_syncs = deque()
-        self.stream = None
-
-    def edges_before(self, t):
-        """X STEP edges at or before t seconds after the first (the board's count)."""
-        if t < 0:
-            return 0
-        return int(min(self.motion.n, np.floor(self.motion.steps_at(np.array([t]))[0]) + 1))
-
-    def ticks(self, t):
-        return int(self.clock.offset_ticks + self.clock.ticks_per_s * t)
-
-    def clock_exchanges(self, n):
-        import time
-
-        t = time.monotonic()
-        return [(t, float(self.ticks(t)), 1e-3)] * n
-
-    def stream_start(self):
-        import time
-
-        self.t0 = time.monotonic()
-
-    def stream_stop(self):
-        import time
-
-        t1 = time.monotonic()
-        start = self.t0 + 0.02  # the first step, after the first waveforms
-        self.motion_syncs.append(self.ns(
-            burst_id=len(self.motion_syncs), first_edge=self.ticks(start),
-            last_edge=self.ticks(start + self.motion.last_step_s),
-            edges=self.motion.n + self.edges_off))
-        times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
-        waves = [self.ns(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
-                         trigger_phase=7, samples=np.zeros(64, np.uint16),
-                         sync_steps=sum(self.edges_before(t + 1e-3 * k - start)
-                                        for k in range(12)))
-                 for i, t in enumerate(times)]
-        return waves, {"shots_dropped": 0, "adc_overruns": 0, "integrity_faults": 0}
-
-
-class FakeStage:
-    def __init__(self, motion):
-        self.motion = motion
-
-    def move(self, **kw):
-        pass
-
-    def wait(self):
-        import time
-
-        time.sleep(self.motion.last_step_s + 0.03)
-
-
-@pytest.mark.parametrize("jump_s, edges_off, why", [
-    (0.0, 0, None),
-    (-30.0, 0, "clock jumped"),            # the board reset: its clock restarted
-    (0.0, -1, "one X step burst of"),      # a step lost on the wire, or another move
-])
-def test_a_fly_line_is_kept_only_when_its_clock_and_its_steps_check_out(jump_s, edges_off,
-                                                                        why):
-    motion = LineMotion(80.0, 140.0, 83.33, ACCEL, SPU)
-    sensor, stage = FakeSensor(motion, jump_s, edges_off), FakeStage(motion)
-    plan = ScanPlan("b", step_mm=1.0, average=12, mode="fly")
-    line = FlyLine(0, [Point(0, 104.0, 0, 0, 0, 0, 0, 0), Point(1, 116.0, 0, 0, 0, 0, 12, 0)])
-    if why is None:
-        rows = _measure(stage, sensor, plan, line, motion, sensor.clock, 83.33)
-        assert 0 < len(rows["x"]) and np.all(np.diff(rows["x"]) > 0)
-        assert rows["x"].min() >= 103.5 and rows["x"].max() <= 116.5
-    else:
-        with pytest.raises(LineRejected, match=why):
-            _measure(stage, sensor, plan, line, motion, sensor.clock, 83.33)

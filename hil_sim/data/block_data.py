@@ -8,8 +8,7 @@ import numpy as np
 
 from dmdsm.host.ranging.calibrate import RangingSetup, distance_std_mm
 from dmdsm.host.ranging.procedure import calibrate_range
-from dmdsm.host.scan.executor import PointRanger
-from dmdsm.host.scan.plan import ScanPlan, expand
+from dmdsm.host.scan.plan import ScanPlan, expand, point_ranger
 
 from ..boards.sensor.core_board import TICK_HZ
 from ..physics.objects import aluminium_block
@@ -43,7 +42,7 @@ def scan_block(rig: DirectRig, setup: RangingSetup, levels_mm: list[float],
     plan = ScanPlan("aluminium_block", "aluminium", radius_mm=30.0, height_mm=40.0,
                     levels_mm=list(levels_mm), half_width_mm=32.0, step_mm=step_mm)
     rig.configure(n_samples=plan.samples, n_average=plan.average)
-    ranger = PointRanger(setup, plan, plan.samples, TICK_HZ)
+    ranger = point_ranger(plan, setup, plan.samples, TICK_HZ)
     rows: dict[str, list] = {"oa": [], "us": []}
     previous = None
     for p in expand(plan, v, s.X_R):

@@ -20,8 +20,7 @@ from dmdsm.host.files import file_hash
 from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
 from dmdsm.host.ranging.matched_filter import gaussian_pulse
 from dmdsm.host.scan.catalogue import connect, record
-from dmdsm.host.scan.executor import PointRanger
-from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.plan import ScanPlan, point_ranger
 from dmdsm.host.scan.scanfile import PHASES, ScanWriter
 
 from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ
@@ -63,7 +62,7 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
     plan = ScanPlan(name, material, radius_mm=radius + 1, height_mm=h, modality=mod,
                     average=average, samples=n_samples)
     setup = true_setup(model)
-    ranger = PointRanger(setup, plan, n_samples, TICK_HZ)
+    ranger = point_ranger(plan, setup, n_samples, TICK_HZ)
     path = db / "scans" / f"{name}-s{seed}.h5"
     path.unlink(missing_ok=True)
     writer = ScanWriter.create(

@@ -41,7 +41,8 @@ class _Shots:
 
 
 class DirectRig:
-    """Stage + sensor in one object with the clients' methods that `scan_rig` calls."""
+    """Stage + sensor in one object: the host's StageMotion and ShotSensor (links.interfaces),
+    what `scan_rig` and `calibrate_range` call."""
 
     def __init__(self, scene: Scene, seed: int = 0, stage_noise_mm: float = 0.002,
                  angle_noise_deg: float = 0.01) -> None:
@@ -54,8 +55,10 @@ class DirectRig:
         self.cfg = {"n_samples": 1024, "n_average": 1}
 
     # stage side
-    def move(self, x: float, y: float, z: float, a: float = 0.0, **_: object) -> None:
-        """Commanded position (mm, deg); the physical one adds a fixed per-position scatter."""
+    def move(self, x: float, y: float, z: float, a: float = 0.0,
+             feed_mm_min: float | None = None, wait: bool = False) -> None:
+        """Commanded position (mm, deg; all three axes, A 0 unless given, instantly: the feed
+        and wait are ignored); the physical one adds a fixed per-position scatter."""
         self.cmd = np.array([x, y, z, a], float)
 
     def wait(self) -> None:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..links.interfaces import ShotSensor, StageMotion
 from ..links.safety import TABLE_I
 from ..ranging.calibrate import RangingSetup, gate_for
 from ..ranging.matched_filter import MatchedFilter
@@ -53,7 +54,7 @@ def check_plan(plan: RigPlan, step: str) -> None:
         raise ValueError("--edge-half and --edge-step must be positive (mm)")
 
 
-def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
+def _measure(stage: StageMotion, sensor: ShotSensor, mf: MatchedFilter, setup: RangingSetup,
              plan: RigPlan, gate: tuple[int, int], x: float, y: float, z: float,
              a: float) -> tuple[float, float]:
     """Move, record, range: (d in mm or NaN, amplitude)."""
@@ -72,7 +73,7 @@ def _measure(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSet
     return float(np.nanmean(d)) if np.isfinite(d).any() else np.nan, amp
 
 
-def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
+def scan_rig(stage: StageMotion, sensor: ShotSensor, setup: RangingSetup, plan: RigPlan,
              step: str, progress: Callable[[int, int], None] | None = None,
              on_row: Callable[[dict], None] | None = None) -> list[dict]:
     """Raw points of the tip frames (step='tip') or the edge frames (step='edge'); on_row
@@ -109,7 +110,7 @@ def scan_rig(stage: object, sensor: object, setup: RangingSetup, plan: RigPlan,
     return rows
 
 
-def _scan_tips(stage: object, sensor: object, mf: MatchedFilter, setup: RangingSetup,
+def _scan_tips(stage: StageMotion, sensor: ShotSensor, mf: MatchedFilter, setup: RangingSetup,
                plan: RigPlan, gate: tuple[int, int],
                progress: Callable[[int, int], None] | None,
                on_row: Callable[[dict], None] | None = None) -> list[dict]:

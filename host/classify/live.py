@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..ranging.calibrate import RangingSetup
-from ..scan.executor import PointRanger
-from ..scan.plan import ScanPlan
+from ..scan.plan import ScanPlan, point_ranger
 from .materials import MODS, ClassifyError, Dataset, arrival_sample, windows
 
 RADIUS_MM = 30.0     # echoes are searched 5..71 mm from the sensor (plan standoff 8 mm)
@@ -24,8 +23,8 @@ def live_windows(samples: np.ndarray, phase_ticks: np.ndarray, setup: RangingSet
     """Range each waveform (n, n_samples) u16 and cut windows: a Dataset of the waveforms
     with an OA+US pair, and the (k, window) windows of lone pulses of unknown modality."""
     n_samples = samples.shape[1]
-    ranger = {m: PointRanger(setup, ScanPlan("live", radius_mm=RADIUS_MM, modality=m),
-                             n_samples, tick_hz) for m in ("both", *setup.cals)}
+    ranger = {m: point_ranger(ScanPlan("live", radius_mm=RADIUS_MM, modality=m), setup,
+                              n_samples, tick_hz) for m in ("both", *setup.cals)}
     X: dict[str, list] = {m: [] for m in MODS}
     lone: list[np.ndarray] = []
     for wave, ph in zip(samples.astype(np.uint16), phase_ticks):

@@ -121,7 +121,13 @@ class ClockSync:
 
 
 class SensorClient:
-    """The STM32 sensor board on a port name or URL (device, pty, socket:// for QEMU)."""
+    """The STM32 sensor board on a port name or URL (device, pty, socket:// for QEMU).
+
+    Satisfies links.interfaces.Sensor (shots and stream)."""
+
+    port_name: str                   # the port name or URL given
+    identity: Message | None         # the handshake reply (None only while it is made)
+    motion_syncs: deque[Message]     # the stage's X STEP burst reports, the last 256
 
     def __init__(self, port: str, baudrate: int = 2_000_000, timeout_s: float = 0.5,
                  retries: int = 4, expected_hash: int = SPEC.hash) -> None:

@@ -50,7 +50,7 @@ class StageStats:
 
 
 class StageClient:
-    """A Marlin board on a serial port (or pty / URL)."""
+    """A Marlin board on a serial port (or pty / URL); satisfies links.interfaces.Stage."""
 
     def __init__(self, port: str, baudrate: int = 250000, timeout_s: float = 5.0,
                  window: int = 4, stop_first: bool = False,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..links.interfaces import ShotSensor, StageMotion
 from ..links.safety import TABLE_I
 from .calibrate import (
     MODALITIES,
@@ -33,7 +34,7 @@ def positions(start: dict[str, float], steps: int, step_mm: float, lateral: int 
     return np.array(out, float).reshape(-1, 3)
 
 
-def calibrate_range(stage: object, sensor: object, start: dict[str, float],
+def calibrate_range(stage: StageMotion, sensor: ShotSensor, start: dict[str, float],
                     start_distance_mm: float, steps: int = 11, step_mm: float = 0.5,
                     shots: int = 10, average: int = 16, temperature_c: float = 20.0,
                     along_beam: float = 1.0 / TABLE_I["v"][1], fit_c: bool = True,

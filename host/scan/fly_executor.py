@@ -14,16 +14,17 @@ of a line: an interrupted scan resumes at the next line.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits
 
+from ..links.interfaces import Stage, StreamSensor
 from ..links.sensor import CLOCK_SPACING_S, fit_clock
 from ..links.transport import LinkError
-from .executor import PointRanger, ScanStats, _surface
+from ..ranging.point import PointRanger, surface
+from .common import Progress, ScanStats, approach
 from .fly import LineMotion, at_line_speed, counted_x, line_speed_mm_s, place_shots, ramp_mm
 from .plan import Point, ScanPlan
 from .scanfile import PHASES, ScanWriter
@@ -93,168 +94,186 @@ def line_ends(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> tuple[fl
     return line.x_first - line.direction * r, line.x_last + line.direction * r
 
 
-def run_fly_scan(stage: object, sensor: object, plan: ScanPlan, points: list[Point],
+def run_fly_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, points: list[Point],
                  writer: ScanWriter, ranger: PointRanger, machine: MachineLimits,
-                 progress: Callable[[int, int, dict], None] | None = None) -> ScanStats:
-    """Measure the lines after the last one in the file; returns what this run did."""
-    stats = ScanStats()
-    t_start = time.monotonic()
-    lines = fly_lines(points)
-    done = writer.data["point_index"][:writer.n_done]
-    todo = lines[int(done.max()) + 1:] if len(done) else lines
-    exchanges = sensor.clock_exchanges(16, CLOCK_SPACING_S)
-    clock = fit_clock(exchanges)
-    tick_hz = float(sensor.identity.tick_hz)
-    unix_minus_monotonic = time.time() - time.monotonic()
-    v, a = fly_speed(plan, machine)
-    spu = machine.steps_per_unit[machine.axis("X")]
-    if todo:  # approach: into the front plane along Y first, as the plan check assumed
-        here = stage.where()
-        stage.move(x=here["X"], y=todo[0].points[0].y, z=here["Z"],
-                   feed_mm_min=plan.feed_mm_min)
-    state: dict = {"pending": None, "clock": clock, "exchanges": exchanges}
-
-    def store() -> None:
-        """Range and append the measured line waiting in state["pending"], if any."""
-        if state["pending"] is None:
-            return
-        rows, line, attempts, timing = state["pending"]
-        state["pending"] = None
-        t2 = time.monotonic()
-        values = _range(rows, line, ranger, attempts, unix_minus_monotonic,
-                        JUMP_STEPS * plan.step_mm)
-        timing["ranging"] = time.monotonic() - t2
-        n = len(rows["samples"])
-        values["phase_time_s"] = np.tile([timing[k] / n for k in PHASES], (n, 1))
-        t3 = time.monotonic()
-        writer.append_many(rows["samples"], **values)
-        stats.store_s += time.monotonic() - t3
-        stats.stored += n
-        for k in PHASES:
-            stats.phase_s[k] += timing[k]
-        if progress is not None:
-            progress(writer.n_done, len(points), timing)
-
-    try:
-        for line in todo:
-            state["pending"] = _fly_line(stage, sensor, plan, line, machine, v, a, spu,
-                                         state, stats, store)
-    except KeyboardInterrupt:  # stop the stage, then keep the line already measured
-        if state["pending"] is not None:
-            try:
-                stage.stop()
-            except LinkError:
-                pass
-            store()
-        raise
-    store()
-    clock, exchanges = state["clock"], state["exchanges"]
-    stats.clock = {"drift_ppm": round((clock.ticks_per_s / tick_hz - 1) * 1e6, 3),
-                   "drift_std_ppm": round(clock.rate_std / tick_hz * 1e6, 3),
-                   "residual_us": round(clock.residual_s * 1e6, 3),
-                   "rtt_ms": round(clock.rtt_s * 1e3, 3), "exchanges": len(exchanges)}
-    stats.wall_s = time.monotonic() - t_start
-    return stats
+                 progress: Progress | None = None) -> ScanStats:
+    """Measure the lines after the last one in the file; returns what this run did
+    (progress: points in the file, planned, phase times s, after each stored line)."""
+    return FlyRun(stage, sensor, plan, points, writer, ranger, machine, progress).run()
 
 
-def _fly_line(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
-              machine: MachineLimits, v: float, a: float, spu: float, state: dict,
-              stats: ScanStats, store: Callable[[], None]) -> tuple:
-    """Measure one line, up to RETRIES times; the previous line is stored while the stage
-    moves to this one's run-up. Returns (rows, line, attempts, timing) or raises."""
-    p0 = line.points[0]
-    xs, xe = line_ends(line, plan, machine)
-    reasons: list[str] = []
-    attempts = 0
-    while attempts < RETRIES:
-        attempts += 1
-        timing = dict.fromkeys(PHASES, 0.0)
-        stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg, feed_mm_min=plan.feed_mm_min)
-        store()  # the previous line, while the stage moves
-        t0 = time.monotonic()
-        stage.wait()
-        t1 = time.monotonic()
-        timing["move"] = t1 - t0
+@dataclass
+class MeasuredLine:
+    """A kept measurement of a line, waiting to be ranged and stored."""
+
+    rows: dict            # the kept waveforms and where they were (FlyRun.measure)
+    line: FlyLine
+    attempts: int         # measurements of the line it took
+    timing: dict          # phase times (s) of the line, by PHASES
+
+
+class FlyRun:
+    """One run of a fly scan: the clock sync, the line measured and not yet stored, the
+    statistics; each line is stored while the stage moves to the next one's run-up."""
+
+    def __init__(self, stage: Stage, sensor: StreamSensor, plan: ScanPlan,
+                 points: list[Point], writer: ScanWriter, ranger: PointRanger,
+                 machine: MachineLimits, progress: Progress | None = None) -> None:
+        """Syncs the sensor's clock (16 exchanges); nothing moves until run()."""
+        self.stage, self.sensor, self.plan, self.points = stage, sensor, plan, points
+        self.writer, self.ranger, self.machine, self.progress = writer, ranger, machine, progress
+        self.stats = ScanStats()
+        self.t_start = time.monotonic()
+        self.lines = fly_lines(points)
+        self.exchanges: list[tuple[float, float, float]] = sensor.clock_exchanges(
+            16, CLOCK_SPACING_S)  # (host s, device ticks, RTT s), the last 400 kept
+        self.clock = fit_clock(self.exchanges)
+        self.tick_hz = float(sensor.identity.tick_hz)
+        self.unix_minus_monotonic = time.time() - time.monotonic()
+        self.v, self.a = fly_speed(plan, machine)  # mm/s, mm/s^2
+        self.spu = machine.steps_per_unit[machine.axis("X")]  # X steps/mm
+        self.pending: MeasuredLine | None = None
+
+    def todo(self) -> list[FlyLine]:
+        """The lines after the last one in the file."""
+        done = self.writer.data["point_index"][:self.writer.n_done]
+        return self.lines[int(done.max()) + 1:] if len(done) else self.lines
+
+    def run(self) -> ScanStats:
+        """Approach, measure and store every line left; Ctrl-C stops the stage and keeps
+        the line already measured. Returns the statistics, with the clock sync's."""
+        todo = self.todo()
+        if todo:  # approach: into the front plane along Y first, as the plan check assumed
+            approach(self.stage, todo[0].points[0].y, self.plan.feed_mm_min)
         try:
-            rows = _measure(stage, sensor, plan, line, LineMotion(xs, xe, v, a, spu),
-                            state["clock"], v, state["exchanges"])
-            return rows, line, attempts, timing
-        except LineRejected as e:
-            reasons.append(str(e))
-            stats.lost += 1
+            for line in todo:
+                self.pending = self.measure_line(line)
+        except KeyboardInterrupt:  # stop the stage, then keep the line already measured
+            if self.pending is not None:
+                try:
+                    self.stage.stop()
+                except LinkError:
+                    pass
+                self.store_pending()
+            raise
+        self.store_pending()
+        clock, tick_hz = self.clock, self.tick_hz
+        self.stats.clock = {"drift_ppm": round((clock.ticks_per_s / tick_hz - 1) * 1e6, 3),
+                            "drift_std_ppm": round(clock.rate_std / tick_hz * 1e6, 3),
+                            "residual_us": round(clock.residual_s * 1e6, 3),
+                            "rtt_ms": round(clock.rtt_s * 1e3, 3),
+                            "exchanges": len(self.exchanges)}
+        self.stats.wall_s = time.monotonic() - self.t_start
+        return self.stats
+
+    def store_pending(self) -> None:
+        """Range and append the measured line waiting in self.pending, if any."""
+        if self.pending is None:
+            return
+        m, self.pending = self.pending, None
+        t2 = time.monotonic()
+        values = _range(m.rows, m.line, self.ranger, m.attempts, self.unix_minus_monotonic,
+                        JUMP_STEPS * self.plan.step_mm)
+        m.timing["ranging"] = time.monotonic() - t2
+        n = len(m.rows["samples"])
+        values["phase_time_s"] = np.tile([m.timing[k] / n for k in PHASES], (n, 1))
+        self.stats.store(lambda: self.writer.append_many(m.rows["samples"], **values), n,
+                         m.timing, self.writer, len(self.points), self.progress)
+
+    def measure_line(self, line: FlyLine) -> MeasuredLine:
+        """Measure one line, up to RETRIES times, storing the pending line while the stage
+        moves to this one's run-up; raises FlyScanError if no measurement is kept."""
+        p0 = line.points[0]
+        xs, xe = line_ends(line, self.plan, self.machine)
+        reasons: list[str] = []
+        attempts = 0
+        while attempts < RETRIES:
+            attempts += 1
+            timing = dict.fromkeys(PHASES, 0.0)
+            self.stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg,
+                            feed_mm_min=self.plan.feed_mm_min)
+            self.store_pending()  # the previous line, while the stage moves
+            t0 = time.monotonic()
+            self.stage.wait()
+            t1 = time.monotonic()
+            timing["move"] = t1 - t0
+            try:
+                rows = self.measure(line, LineMotion(xs, xe, self.v, self.a, self.spu))
+                return MeasuredLine(rows, line, attempts, timing)
+            except LineRejected as e:
+                reasons.append(str(e))
+                self.stats.lost += 1
+            finally:
+                timing["acquire"] = time.monotonic() - t1
+                self.exchanges = self.exchanges[-400:]  # a longer baseline: a better drift
+                self.clock = fit_clock(self.exchanges)
+        raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
+                           f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
+
+    def measure(self, line: FlyLine, motion: LineMotion) -> dict:
+        """One pass along the line (the stage at motion.x0, at rest), sweeping to motion.x1
+        at motion.v (mm/s): the kept waveforms and where they were, or LineRejected. A
+        clock_sync exchange just before the arm and one just after the disarm bracket the
+        line in the device's clock (appended to self.exchanges for the drift fit)."""
+        stage, sensor, plan, clock, v = self.stage, self.sensor, self.plan, self.clock, motion.v
+        bursts_before = {m.burst_id for m in sensor.motion_syncs}
+        before = sensor.clock_exchanges(1)
+        sensor.stream_start()
+        try:
+            stage.move(x=motion.x1, feed_mm_min=round(v * 60), wait=False)
+            stage.wait()
+            end = time.monotonic() + SYNC_WAIT_S
+            while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
+                new = [m for m in list(sensor.motion_syncs) if m.burst_id not in bursts_before]
+                if any(m.edges == motion.n for m in new):
+                    break
+                time.sleep(0.005)
         finally:
-            timing["acquire"] = time.monotonic() - t1
-            state["exchanges"] = state["exchanges"][-400:]  # a longer baseline: a better drift
-            state["clock"] = fit_clock(state["exchanges"])
-    raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
-                       f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
-
-
-def _measure(stage: object, sensor: object, plan: ScanPlan, line: FlyLine,
-             motion: LineMotion, clock: object, v: float,
-             exchanges: list[tuple[float, float, float]] | None = None) -> dict:
-    """One pass along the line; the kept waveforms and where they were, or LineRejected.
-    A clock_sync exchange just before the arm and one just after the disarm bracket the
-    line in the device's clock (appended to `exchanges` for the drift fit)."""
-    bursts_before = {m.burst_id for m in sensor.motion_syncs}
-    before = sensor.clock_exchanges(1)
-    sensor.stream_start()
-    try:
-        stage.move(x=motion.x1, feed_mm_min=round(v * 60), wait=False)
-        stage.wait()
-        end = time.monotonic() + SYNC_WAIT_S
-        while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
-            new = [m for m in list(sensor.motion_syncs) if m.burst_id not in bursts_before]
-            if any(m.edges == motion.n for m in new):
-                break
-            time.sleep(0.005)
-    finally:
-        waves, change = sensor.stream_stop()
-    after = sensor.clock_exchanges(1)
-    if exchanges is not None:
-        exchanges += before + after
-    if not waves:
-        raise LineRejected("no waveform arrived while the line ran")
-    ids = np.array([w.shot_id for w in waves])
-    if np.any(ids != np.arange(len(ids))) or any(change.values()):
-        raise LineRejected(f"waveforms were lost (shot ids {ids[0]}..{ids[-1]} for "
-                           f"{len(ids)} received; device counters {change})")
-    ts = np.array([w.timestamp for w in waves], dtype=np.int64)
-    host_t = clock.to_host_s(ts)
-    if np.any(np.diff(ts) <= 0) or not before[0][1] <= ts[0] <= ts[-1] <= after[0][1]:
-        raise LineRejected("the sensor clock jumped during the line (a board reset?): the "
-                           "waveform times do not lie between the clock syncs around it")
-    new = [m for m in list(sensor.motion_syncs)
-           if m.burst_id not in bursts_before and m.first_edge > ts[0]]
-    if len(new) != 1 or new[0].edges != motion.n:
-        got = ", ".join(str(m.edges) for m in new) or "none"
-        raise LineRejected(f"expected one X step burst of {motion.n} steps after the arm, got "
-                           f"{got}: is the X STEP line wired to the sensor's sync input "
-                           f"(docs/firmware.md)?")
-    n_avg = int(waves[0].n_average)
-    tick_hz = float(sensor.identity.tick_hz)
-    period = float(np.median(np.diff(ts))) / n_avg / tick_hz if len(ts) > 1 else \
-        1.0 / plan.laser_hz
-    if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
-        raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
-                           f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
-    try:  # the model says which shots fell in the cruise; the counted steps say where
-        _, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
-                                   tick_hz, ts, n_avg, period)
-    except ValueError as e:
-        raise LineRejected(str(e)) from None
-    x = counted_x(motion, np.array([w.sync_steps for w in waves]), n_avg)
-    cruise &= at_line_speed(x, v, n_avg, period)
-    lo = min(line.x_first, line.x_last) - plan.step_mm / 2
-    hi = max(line.x_first, line.x_last) + plan.step_mm / 2
-    keep = cruise & (x >= lo) & (x <= hi)
-    if not keep.any():
-        raise LineRejected("no waveform fell inside the line's cruise")
-    idx = np.nonzero(keep)[0]
-    return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
-            "x": x[idx], "timestamp": ts[idx], "host_t": host_t[idx],
-            "trigger_phase": np.array([waves[i].trigger_phase for i in idx]),
-            "n_average": np.array([waves[i].n_average for i in idx])}
+            waves, change = sensor.stream_stop()
+        after = sensor.clock_exchanges(1)
+        self.exchanges += before + after
+        if not waves:
+            raise LineRejected("no waveform arrived while the line ran")
+        ids = np.array([w.shot_id for w in waves])
+        if np.any(ids != np.arange(len(ids))) or any(change.values()):
+            raise LineRejected(f"waveforms were lost (shot ids {ids[0]}..{ids[-1]} for "
+                               f"{len(ids)} received; device counters {change})")
+        ts = np.array([w.timestamp for w in waves], dtype=np.int64)
+        host_t = clock.to_host_s(ts)
+        if np.any(np.diff(ts) <= 0) or not before[0][1] <= ts[0] <= ts[-1] <= after[0][1]:
+            raise LineRejected("the sensor clock jumped during the line (a board reset?): the "
+                               "waveform times do not lie between the clock syncs around it")
+        new = [m for m in list(sensor.motion_syncs)
+               if m.burst_id not in bursts_before and m.first_edge > ts[0]]
+        if len(new) != 1 or new[0].edges != motion.n:
+            got = ", ".join(str(m.edges) for m in new) or "none"
+            raise LineRejected(f"expected one X step burst of {motion.n} steps after the arm, got "
+                               f"{got}: is the X STEP line wired to the sensor's sync input "
+                               f"(docs/firmware.md)?")
+        n_avg = int(waves[0].n_average)
+        tick_hz = self.tick_hz
+        period = float(np.median(np.diff(ts))) / n_avg / tick_hz if len(ts) > 1 else \
+            1.0 / plan.laser_hz
+        if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
+            raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
+                               f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
+        try:  # the model says which shots fell in the cruise; the counted steps say where
+            _, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
+                                       tick_hz, ts, n_avg, period)
+        except ValueError as e:
+            raise LineRejected(str(e)) from None
+        x = counted_x(motion, np.array([w.sync_steps for w in waves]), n_avg)
+        cruise &= at_line_speed(x, v, n_avg, period)
+        lo = min(line.x_first, line.x_last) - plan.step_mm / 2
+        hi = max(line.x_first, line.x_last) + plan.step_mm / 2
+        keep = cruise & (x >= lo) & (x <= hi)
+        if not keep.any():
+            raise LineRejected("no waveform fell inside the line's cruise")
+        idx = np.nonzero(keep)[0]
+        return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
+                "x": x[idx], "timestamp": ts[idx], "host_t": host_t[idx],
+                "trigger_phase": np.array([waves[i].trigger_phase for i in idx]),
+                "n_average": np.array([waves[i].n_average for i in idx])}
 
 
 def straddles(d_mm: np.ndarray, x_mm: np.ndarray, jump_mm: float) -> np.ndarray:
@@ -287,7 +306,7 @@ def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
     previous = None
     for i in range(n):
         r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous)
-        previous = _surface(r)
+        previous = surface(r)
         nan = (np.nan, 0.0)
         for m in ("oa", "us"):
             out[f"distance_{m}_mm"].append(r.get(m, nan)[0])

@@ -20,6 +20,8 @@ import numpy as np
 from dmdsm.marlin_patch import MachineLimits
 
 from ..links.safety import KeepOut, UnsafeMove, check_move
+from ..ranging.calibrate import RangingSetup
+from ..ranging.point import PointRanger
 
 MODALITIES = ("both", "oa", "us")
 MODES = ("step", "fly")
@@ -132,6 +134,19 @@ class ScanPlan:
     def hash(self) -> str:
         """sha256 of the plan text: the identity used to resume."""
         return hashlib.sha256(self.to_toml().encode()).hexdigest()
+
+    def depth_gate_mm(self) -> tuple[float, float]:
+        """(lo, hi) beam distances (mm) where echoes are searched: from the standoff less the
+        margin (at least 0.5) to the far side of the bounding cylinder plus the margin."""
+        return (max(self.standoff_mm - self.depth_margin_mm, 0.5),
+                self.standoff_mm + 2 * self.radius_mm + self.depth_margin_mm)
+
+
+def point_ranger(plan: ScanPlan, setup: RangingSetup, n_samples: int, tick_hz: float
+                 ) -> PointRanger:
+    """The ranger of this plan's waveforms (n_samples each, trigger phases in ticks at
+    tick_hz): its modality, gated to its depth range (ScanPlan.depth_gate_mm)."""
+    return PointRanger(setup, n_samples, tick_hz, plan.modality, plan.depth_gate_mm())
 
 
 MAX_POINTS = 200_000  # ~4 h of step and shoot; bounds the memory and time of a plan's check

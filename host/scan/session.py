@@ -16,16 +16,18 @@ from pathlib import Path
 
 import numpy as np
 
-from dmdsm.marlin_patch import load_machine
+from dmdsm.marlin_patch import MachineLimits, load_machine
 
 from .. import __version__
 from ..files import file_hash
+from ..links.interfaces import Sensor, Stage
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from .catalogue import connect, record
-from .executor import PointRanger, ScanStats, run_scan
+from .common import Progress, ScanStats
+from .executor import run_scan
 from .fly_executor import fly_lines, line_ends, run_fly_scan
-from .plan import Point, ScanPlan, check_path, check_plan, expand, keep_outs
+from .plan import Point, ScanPlan, check_path, check_plan, expand, keep_outs, point_ranger
 from .scanfile import ScanFileError, ScanWriter, read_scan
 
 
@@ -71,7 +73,7 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     return points
 
 
-def fly_path(points: list[Point], plan: ScanPlan, machine: object
+def fly_path(points: list[Point], plan: ScanPlan, machine: MachineLimits
              ) -> tuple[list[np.ndarray], list[str]]:
     """Every point a fly scan's stage passes through in a straight move (run-up start, then
     run-out end, line by line), with labels for the refusal message."""
@@ -115,10 +117,10 @@ def _complete(scan_id: str, path: Path) -> ScanRun | None:
     return ScanRun(scan_id, path, done.n_points, done.n_points, "already complete")
 
 
-def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
+def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, calibration: dict,
              calibration_toml: str, setup: RangingSetup, db: Path, scan_id: str | None = None,
              home: bool = True,
-             progress: Callable[[int, int, dict], None] | None = None,
+             progress: Progress | None = None,
              on_start: Callable[[ScanWriter, int], None] | None = None) -> ScanRun:
     """Scan `plan` with open clients into the database folder `db` (created if missing).
 
@@ -166,7 +168,7 @@ def run_plan(sensor: object, stage: object, plan: ScanPlan, calibration: dict,
         record(Path(db), scan_id, n_planned=len(points))
         if on_start is not None:
             on_start(writer, len(points))
-        ranger = PointRanger(setup, plan, sc["n_samples"], sensor.identity.tick_hz)
+        ranger = point_ranger(plan, setup, sc["n_samples"], sensor.identity.tick_hz)
         if plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)

@@ -1,0 +1,114 @@
+"""One waveform's OA and US distances (mm) inside a depth gate: the two-modality ranging policy.
+
+One receiver hears both arrivals, so a lone pulse at time t is either OA from c (t - t0_OA) or
+US from c (t - t0_US) / 2; PointRanger decides which (a scan, the emulator's data generators
+and `dmdsm classify predict --sensor` range alike). It knows no scan plan: the scan layer
+gives it the plan's modality and depth gate (scan.plan.point_ranger).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .calibrate import K, RangingSetup
+from .matched_filter import MatchedFilter
+
+CONTINUITY_MM = 3.0  # a lone pulse continues the previous point's surface within this
+CONTINUITY_DB = 10.0  # ... and at most this much weaker than it
+
+
+class PointRanger:
+    """Both modalities' distances (mm) for one waveform, gated to depth_mm = (lo, hi) mm.
+
+    Each reading is checked for its partner (the other modality from the same surface,
+    within `pair_mm`): a confirmed pair fixes both; a lone pulse is read as `modality`
+    ("both": OA, which survives oblique incidence where the specular US echo does not)."""
+    # A lone pulse with modality "both" is read as whichever modality puts it within
+    # CONTINUITY_MM of the previous point of the same line (surfaces are continuous) at an
+    # SNR no more than CONTINUITY_DB below that point's in the same modality (a much
+    # weaker pulse is something else: e.g. OA from a grazing side face far behind); with
+    # no such neighbour it is ambiguous and both distances are NaN.
+
+    def __init__(self, setup: RangingSetup, n_samples: int, tick_hz: float,
+                 modality: str, depth_mm: tuple[float, float], pair_mm: float = 2.0) -> None:
+        """setup: templates and t0, c; n_samples per waveform; tick_hz of trigger phases;
+        modality "both", "oa" or "us"; depth_mm (lo, hi) where echoes are searched (mm)."""
+        self.setup = setup
+        self.tick_hz = tick_hz
+        self.modality = modality
+        self.pair_mm = pair_mm
+        self.n = n_samples
+        self.lo, self.hi = depth_mm
+        self.filters = {m: MatchedFilter(setup.templates[m], n_samples) for m in setup.cals}
+
+    def _gate(self, m: str, d_lo: float, d_hi: float, phase_s: float, pre: int
+              ) -> tuple[int, int]:
+        """Samples where an arrival from d_lo..d_hi mm lands (calibrated t0 and c)."""
+        cal = self.setup.cals[m]
+        fs = self.setup.fs_hz
+        t = [cal.t0_s + K[m] * d / cal.c_mm_s - phase_s for d in (d_lo, d_hi)]
+        return (max(int(np.floor(t[0] * fs)) + pre - 1, 0),
+                min(int(np.ceil(t[1] * fs)) + pre + 2, self.n))
+
+    def _range(self, m: str, x: np.ndarray, d_lo: float, d_hi: float, phase_s: float,
+               pre: int) -> tuple[float, float]:
+        cal = self.setup.cals[m]
+        mf = self.filters[m]
+        lo, hi = self._gate(m, d_lo, d_hi, phase_s, pre)
+        hi = min(hi, self.n - len(mf.t.pulse) + int(mf.t.center))  # no circular wrap
+        if hi - int(mf.t.center) - 2 * mf.period < max(lo - int(mf.t.center), 0):
+            return np.nan, 0.0  # the window is off the end of the waveform
+        arr = mf(x, gate=(lo, hi))
+        t = arr.times_s(self.setup.fs_hz, phase_s, pre)[0]
+        return float(cal.c_mm_s * (t - cal.t0_s) / K[m]), float(arr.snr_db[0])
+
+    def __call__(self, waveform: np.ndarray, phase_ticks: int, pretrigger: int = 0,
+                 previous: tuple[float, dict[str, float]] | None = None
+                 ) -> dict[str, tuple[float, float]]:
+        """modality -> (distance mm or NaN, SNR dB); previous: (surface distance mm,
+        {modality: SNR dB}) of the previous point on the same scan line, if any."""
+        x = waveform.astype(np.float32)[None, :] - 32768.0
+        ph = phase_ticks / self.tick_hz
+        mods = [m for m in ("oa", "us") if m in self.filters]
+        wide = {m: self._range(m, x, self.lo, self.hi, ph, pretrigger) for m in mods}
+        out = {m: (np.nan, wide[m][1]) for m in mods}
+        if len(mods) < 2:
+            m = mods[0]
+            if self.modality in ("both", m):
+                out[m] = wide[m]
+            return out
+        w = self.pair_mm
+        pairs = []  # (partner SNR, oa reading, us reading)
+        d_us, snr_us = wide["us"]
+        if np.isfinite(d_us):
+            oa = self._range("oa", x, d_us - w, d_us + w, ph, pretrigger)
+            if np.isfinite(oa[0]):
+                pairs.append((oa[1], oa, wide["us"]))
+        d_oa, snr_oa = wide["oa"]
+        if np.isfinite(d_oa):
+            us = self._range("us", x, d_oa - w, d_oa + w, ph, pretrigger)
+            if np.isfinite(us[0]):
+                pairs.append((us[1], wide["oa"], us))
+        if pairs:
+            _, oa, us = max(pairs, key=lambda p: p[0])
+            return {"oa": oa if self.modality != "us" else (np.nan, oa[1]),
+                    "us": us if self.modality != "oa" else (np.nan, us[1])}
+        if self.modality != "both":
+            lone = self.modality
+        elif previous is not None and np.isfinite(previous[0]):
+            near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
+                    and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]
+            lone = near[0] if len(near) == 1 else None
+        else:
+            lone = None
+        if lone is not None and np.isfinite(wide[lone][0]):
+            out[lone] = wide[lone]
+        return out
+
+
+def surface(r: dict[str, tuple[float, float]]) -> tuple[float, dict[str, float]]:
+    """(surface distance mm, {modality: SNR dB} of the modalities that found it) of one
+    PointRanger reading: the `previous` of the next point on the same line."""
+    found = {m: v for m, v in r.items() if np.isfinite(v[0])}
+    d = next(iter(found.values()))[0] if found else np.nan
+    return d, {m: v[1] for m, v in found.items()}

@@ -1,13 +1,17 @@
 """The Marlin patch: every kind of edit, idempotence, refusals, and one source of truth."""
 
+import functools
+import operator
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from dmdsm.marlin_patch import load_machine
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE, checksum, load_machine
 from dmdsm.marlin_patch.apply import PatchError, apply_config, plan
 from dmdsm.marlin_patch.settings import SETTINGS_PATH, load_settings
 
@@ -141,3 +145,26 @@ def test_the_host_envelope_follows_the_settings_file(tmp_path):
     check_move(start, target, load_machine())
     with pytest.raises(UnsafeMove, match="X350 is outside the machine envelope"):
         check_move(start, target, load_machine(changed))
+
+
+@settings(max_examples=300, deadline=None)
+@given(body=st.text(st.characters(min_codepoint=32, max_codepoint=126)) | st.text())
+def test_checksum_is_marlins_xor_of_the_bytes_before_the_last_star(body):
+    """queue.cpp: strrchr(command, '*'), then XOR of every byte before it."""
+    line = f"{body}*{checksum(body)}"
+    before, _, after = line.rpartition("*")
+    assert int(after) == functools.reduce(operator.xor, before.encode(), 0)
+    assert 0 <= checksum(body) <= 255
+
+
+def test_checksum_of_the_reprap_example_and_one_definition_for_host_and_emulator():
+    from dmdsm.host.links import stage
+    from dmdsm.host.scan import fly
+    from dmdsm.sim.boards import marlin, motion
+
+    assert checksum("N3 T0") == 57  # the RepRap G-code page's example line `N3 T0*57`
+    assert stage.checksum is marlin.checksum is checksum
+    assert fly.MINIMAL_STEP_RATE is motion.MINIMAL_STEP_RATE is MINIMAL_STEP_RATE
+    limits = load_machine()
+    assert (stage.RX_BUFFER, stage.MAX_LINE) == (limits.rx_buffer_size - 1,
+                                                 limits.max_cmd_size - 1)

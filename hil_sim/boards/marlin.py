@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dmdsm.marlin_patch import MachineLimits, load_machine
+from dmdsm.marlin_patch import MachineLimits, checksum, load_machine
 
 from .marlin_gcode import FIRMWARE_NAME, QUICK_STOP_CLEAN_S, GcodeMixin
 from .motion import Planner
@@ -32,14 +32,6 @@ class StageFaults:
 
 READ_LAG_BYTES = 12  # bytes that arrive (at 250 kbaud, ~0.5 ms) before the main loop reads a
 # finished line: a line error then flushes them, and the rest of a burst is read from mid-line
-
-
-def checksum(line: str) -> int:
-    """Marlin's checksum: XOR of every byte before '*'."""
-    c = 0
-    for b in line.encode():
-        c ^= b
-    return c
 
 
 class MarlinEmulator(GcodeMixin):

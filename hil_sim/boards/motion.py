@@ -18,10 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dmdsm.marlin_patch import MachineLimits
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE, MachineLimits
 
-MINIMAL_STEP_RATE = 32.0       # steps/s: Marlin's lowest step rate (stepper.h
-# minimal_step_rate = F_CPU / 500000 on the 16 MHz AVR since 2.1's #26881, 2024-07; it was 120)
 BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
 MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
 HISTORY = 16                    # finished blocks kept for position_at() and step_edges()

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MINIMAL_STEP_RATE = 32.0  # steps/s: Marlin's lowest step rate (stepper.h
-# minimal_step_rate = F_CPU / 500000 on the 16 MHz AVR since 2.1's #26881, 2024-07; it was 120)
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE
+
 SCALE_TOLERANCE = 0.01     # |measured / modelled duration - 1| above this: not the move we made
 CRUISE_TOLERANCE = 0.03    # |counted / planned advance per waveform - 1| within this: cruising
 

@@ -12,8 +12,7 @@ import random
 import re
 import sys
 
-from stage_link import checksum  # beside this script
-
+from dmdsm.marlin_patch import checksum
 from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 BUSY = "echo:busy: processing"

@@ -6,13 +6,7 @@ import time
 
 import serial
 
-
-def checksum(line: str) -> int:
-    """XOR of the bytes of a line (Marlin's `*` checksum)."""
-    c = 0
-    for b in line.encode():
-        c ^= b
-    return c
+from dmdsm.marlin_patch import checksum
 
 
 class StageLink:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+from .version import __version__
 
 _EXPORTS = {  # name -> subpackage that defines it
     "SensorClient": "links", "StageClient": "links", "LinkError": "links",

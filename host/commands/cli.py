@@ -8,7 +8,6 @@ import sys
 
 from dmdsm.protocol import tool as protocol_tool
 
-from .. import __version__
 from ..calibration.solver import CalibrationError
 from ..classify.materials import ClassifyError
 from ..files import one_line
@@ -18,6 +17,7 @@ from ..links.transport import LinkError
 from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
+from ..version import __version__
 from . import calibrate, classify, db, devices, flash, range, scan, sim
 from .errors import CliError, Terminated, terminate
 

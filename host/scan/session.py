@@ -18,10 +18,10 @@ import numpy as np
 
 from dmdsm.marlin_patch import load_machine
 
-from .. import __version__
 from ..files import file_hash
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
+from ..version import __version__
 from .catalogue import connect, record
 from .executor import PointRanger, ScanStats, run_scan
 from .fly_executor import fly_lines, line_ends, run_fly_scan

@@ -1,7 +1,8 @@
 """The dmdsm host as a Python API: open the boards, calibrate, scan, reconstruct, classify.
 
-The layers, top to bottom (docs/architecture.md): `commands` (the `dmdsm` command) ->
-`report` -> `classify` -> `scan` -> `calibration` -> `ranging` -> `links` -> `files`.
+The layers, top to bottom (docs/architecture.md): `entry` (the `dmdsm` command) -> `demo` ->
+`commands` -> `report` -> `classify` -> `scan` -> `calibration` -> `ranging` -> `links` ->
+`files` | `version`.
 This face exports the objects a notebook composes; they load on first use, so importing
 one submodule does not import the whole pipeline. The procedures take any stage and sensor
 that satisfy the Protocols Stage / StageMotion and Sensor / ShotSensor / StreamSensor (the
@@ -13,7 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+from .version import __version__
 
 _EXPORTS = {  # name -> subpackage that defines it
     "SensorClient": "links", "StageClient": "links", "LinkError": "links",

@@ -2,6 +2,6 @@
 
 import sys
 
-from .commands.entry import run
+from .entry import run
 
 sys.exit(run())

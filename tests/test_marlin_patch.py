@@ -1,5 +1,6 @@
 """The Marlin patch: every kind of edit, idempotence, refusals, and one source of truth."""
 
+import functools
 import operator
 import shutil
 import subprocess
@@ -8,10 +9,10 @@ from functools import reduce
 from pathlib import Path
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dmdsm.marlin_patch import checksum, load_machine, numbered
+from dmdsm.marlin_patch import MINIMAL_STEP_RATE, checksum, load_machine, numbered
 from dmdsm.marlin_patch.apply import PatchError, apply_config, plan
 from dmdsm.marlin_patch.settings import SETTINGS_PATH, load_settings
 
@@ -156,3 +157,26 @@ def test_a_numbered_line_carries_marlins_checksum(n, command):
     body, _, tail = line.rstrip("\n").rpartition("*")
     assert body == f"N{n} {command}" and line.endswith("\n")
     assert int(tail) == reduce(operator.xor, body.encode(), 0) == checksum(body) < 256
+
+
+@settings(max_examples=300, deadline=None)
+@given(body=st.text(st.characters(min_codepoint=32, max_codepoint=126)) | st.text())
+def test_checksum_is_marlins_xor_of_the_bytes_before_the_last_star(body):
+    """queue.cpp: strrchr(command, '*'), then XOR of every byte before it."""
+    line = f"{body}*{checksum(body)}"
+    before, _, after = line.rpartition("*")
+    assert int(after) == functools.reduce(operator.xor, before.encode(), 0)
+    assert 0 <= checksum(body) <= 255
+
+
+def test_checksum_of_the_reprap_example_and_one_definition_for_host_and_emulator():
+    from dmdsm.host.links import stage
+    from dmdsm.host.scan import fly
+    from dmdsm.sim.boards.stage import marlin, motion
+
+    assert checksum("N3 T0") == 57  # the RepRap G-code page's example line `N3 T0*57`
+    assert marlin.checksum is checksum and stage.numbered is numbered
+    assert fly.MINIMAL_STEP_RATE is motion.MINIMAL_STEP_RATE is MINIMAL_STEP_RATE
+    limits = load_machine()
+    assert (stage.RX_BUFFER, stage.MAX_LINE) == (limits.rx_buffer_size - 1,
+                                                 limits.max_cmd_size - 1)

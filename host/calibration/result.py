@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..files import file_hash, vector3
+from ..version import __version__
 from .solver import CalibrationError, CalibrationResult
 
 

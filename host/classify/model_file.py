@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..files import one_line
+from ..version import __version__
 from .materials import MODS, PRE, ClassifyError, Dataset, FusedModel, make_classifier
 
 MODEL_FORMAT = "dmdsm-classifier/2"

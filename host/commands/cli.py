@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from collections.abc import Callable, Iterable
 
 from dmdsm.protocol import tool as protocol_tool
 
-from .. import __version__
 from ..calibration.solver import CalibrationError
 from ..classify.materials import ClassifyError
 from ..files import one_line
@@ -18,12 +18,16 @@ from ..links.transport import LinkError
 from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
+from ..version import __version__
 from . import calibrate, classify, db, devices, flash, range, scan, sim
 from .errors import CliError, Terminated, terminate
 
+AddParser = Callable[[argparse._SubParsersAction], None]
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of `dmdsm` with all subcommands."""
+
+def build_parser(extra: Iterable[AddParser] = ()) -> argparse.ArgumentParser:
+    """The argument parser of `dmdsm` with all subcommands of this layer, then those `extra`
+    registers (the layers above: host/entry.py adds `dmdsm demo`)."""
     ap = argparse.ArgumentParser(
         prog="dmdsm",
         description="Object scanner for the DMDSM pretouch sensor (host side).")
@@ -38,33 +42,15 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_parser(sub)
     db.add_parsers(sub)
     classify.add_parser(sub)
-    d = sub.add_parser("demo", help="run the end-to-end demo and write a report")
-    d.add_argument("--out", default="out", help="output folder (default: out)")
-    d.add_argument("--quick", action="store_true", help="smaller run for a first look")
-    d.add_argument("--json", action="store_true",
-                   help="progress to stderr, the summary as one JSON line on stdout")
-    d.add_argument("--stage-firmware", default="", metavar="ELF",
-                   help="run this stage firmware (Marlin.elf from `make check-marlin`) under "
-                        "simavr instead of the Marlin emulator (slower: at most 2x real time)")
-    d.set_defaults(func=_demo)
+    for add_parser in extra:
+        add_parser(sub)
     return ap
 
 
-def _demo(args: argparse.Namespace) -> int:
-    from ..report.demo import run_demo
-    try:
-        return run_demo(args.out, main, quick=args.quick, as_json=args.json,
-                        stage_firmware=args.stage_firmware)
-    except RuntimeError as e:  # the stage firmware could not be started (a bad ELF)
-        raise CliError(f"--stage-firmware: {e}") from None
-
-
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run `dmdsm`; returns the process exit code (2 for user errors, 130 for Ctrl-C, 143
-    for SIGTERM)."""
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, extra: Iterable[AddParser] = ()) -> int:
+    """Run `dmdsm` (with the subcommands `extra` registers); returns the process exit code (2
+    for user errors, 130 for Ctrl-C, 143 for SIGTERM)."""
+    args = build_parser(extra).parse_args(argv)
     try:
         previous = signal.signal(signal.SIGTERM, terminate)
     except ValueError:  # not the main thread (a test or the demo calling main): leave it

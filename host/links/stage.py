@@ -26,9 +26,10 @@ from .transport import LinkError, open_port
 OK_N = re.compile(r"^ok\s+N(\d+)(?:\s+P(\d+))?(?:\s+B(\d+))?")
 RESEND = re.compile(r"^(?:Resend|rs):?\s*N?(\d+)", re.I)
 POSITION = re.compile(r"([XYZA]):\s*(-?\d+(?:\.\d+)?)")
-RX_BUFFER = load_machine().rx_buffer_size - 1  # bytes the ring takes before a line is read
+CHIRON = load_machine()  # the patch's settings: the serial facts below come from them
+RX_BUFFER = CHIRON.rx_buffer_size - 1  # bytes Marlin's ring takes before the oldest line is read
 LONG = ("G28", "M400", "G4", "G29")
-MAX_LINE = load_machine().max_cmd_size - 1  # MAX_CMD_SIZE less its terminator: longer is cut
+MAX_LINE = CHIRON.max_cmd_size - 1     # MAX_CMD_SIZE less its terminator: Marlin cuts longer lines
 PROBE = "M114"       # numbered, harmless, answered with `ok N`
 BOOT_S = 3.0         # a board reset by the port opening: bootloader + boot banner
 M110_RETRY_S = 1.0   # M110 again after this long without its ok
@@ -52,7 +53,7 @@ class StageStats:
 class StageClient:
     """A Marlin board on a serial port (or pty / URL); satisfies links.interfaces.Stage."""
 
-    def __init__(self, port: str, baudrate: int = 250000, timeout_s: float = 5.0,
+    def __init__(self, port: str, baudrate: int = CHIRON.baudrate, timeout_s: float = 5.0,
                  window: int = 4, stop_first: bool = False,
                  limits: MachineLimits | None = None) -> None:
         self.port_name = port

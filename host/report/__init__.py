@@ -1,3 +1,1 @@
-"""Reports: figures like the paper's, the demo report page, and the demo that runs the
-pipeline on the emulator through the `dmdsm` command."""
-
+"""Reports: figures like the paper's and the report page (the demo, host/demo/, writes them)."""

@@ -18,11 +18,11 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits, load_machine
 
-from .. import __version__
 from ..files import file_hash
 from ..links.interfaces import Sensor, Stage
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
+from ..version import __version__
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan

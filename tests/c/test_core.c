@@ -413,6 +413,17 @@ static void test_timestamps_survive_wrap(void)
     CHECK(w[1].timestamp == 0x100000080ull && w[2].timestamp == 0x1000000F0ull);
 }
 
+/* one extension of 32-bit ticks for the laser edges and the sync edges: at most one wrap old */
+static void test_tick_extension(void)
+{
+    const uint64_t now = 0x300000005ull;
+    CHECK(dmdsm_core_extend(now, 0x00000005u) == now);
+    CHECK(dmdsm_core_extend(now, 0x00000001u) == 0x300000001ull);
+    CHECK(dmdsm_core_extend(now, 0xFFFFFFFEu) == 0x2FFFFFFFEull); /* before the wrap */
+    CHECK(dmdsm_core_extend(now, 0x00000006u) == 0x200000006ull); /* a whole wrap old */
+    CHECK(dmdsm_core_extend(0x10ull, 0x00000008u) == 0x8ull);
+}
+
 static void test_overrun_is_counted_not_averaged(void)
 {
     reset();
@@ -591,6 +602,7 @@ int main(void)
     test_disarm_discards_partial_average();
     test_trigger_timeout();
     test_timestamps_survive_wrap();
+    test_tick_extension();
     test_overrun_is_counted_not_averaged();
     test_integrity_fault_is_counted_not_averaged();
     test_unavailable_capture_naks_arm();

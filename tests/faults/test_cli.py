@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from dmdsm.host.commands.cli import build_parser, main
+from dmdsm.host.entry import build_parser, main  # every command, `dmdsm demo` too
 
 
 def leaves(parser, path=()):

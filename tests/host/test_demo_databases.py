@@ -2,7 +2,7 @@
 
 import os
 
-from dmdsm.host.report.demo import keep_previous_databases
+from dmdsm.host.demo.run import keep_previous_databases
 
 
 def test_previous_databases_move_aside_and_nothing_is_lost(tmp_path):

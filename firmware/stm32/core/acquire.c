@@ -34,11 +34,9 @@ uint64_t dmdsm_core_now(struct dmdsm_core *c)
     return c->clock_high | t;
 }
 
-/* 64-bit time of a recent 32-bit tick value (at most one wrap old) */
-static uint64_t extend(struct dmdsm_core *c, uint32_t ticks)
+uint64_t dmdsm_core_extend(uint64_t now, uint32_t ticks)
 {
-    uint64_t now = dmdsm_core_now(c);
-    return now - (uint32_t)(c->clock_last - ticks);
+    return now - (uint32_t)((uint32_t)now - ticks);
 }
 
 void dmdsm_core_queue_ctl(struct dmdsm_core *c, const uint8_t *frame, size_t n)
@@ -155,7 +153,7 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
     if (c->state != DMDSM_STATE_ARMED && c->state != DMDSM_STATE_CAPTURING)
         return; /* a late burst after disarm */
     c->count.triggers++;
-    uint64_t edge = extend(c, edge_ticks);
+    uint64_t edge = dmdsm_core_extend(dmdsm_core_now(c), edge_ticks);
     c->armed_at = edge;
     if (result == DMDSM_CAPTURE_OVERRUN) {
         c->count.adc_overruns++;

@@ -110,6 +110,8 @@ uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, uint32_t ticks);
 void dmdsm_core_poll(struct dmdsm_core *c);
 /* current time in ticks, 64-bit */
 uint64_t dmdsm_core_now(struct dmdsm_core *c);
+/* the 64-bit time of a 32-bit tick value at most one wrap before `now` (a dmdsm_core_now) */
+uint64_t dmdsm_core_extend(uint64_t now, uint32_t ticks);
 /* queue a log line (also used by boards, e.g. after a HardFault reset or a boot failure);
  * an error-level line with a code also becomes status.last_error */
 void dmdsm_core_log(struct dmdsm_core *c, uint8_t level, uint8_t code, const char *text);

@@ -42,12 +42,6 @@ uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, uint32_t ticks)
     return n - later;
 }
 
-/* 64-bit time of a 32-bit tick value at most one wrap before now */
-static uint64_t since(uint64_t now, uint32_t ticks)
-{
-    return now - (uint32_t)((uint32_t)now - ticks);
-}
-
 void dmdsm_core_sync_poll(struct dmdsm_core *c)
 {
     if (c->sync_edges == 0)
@@ -65,8 +59,8 @@ void dmdsm_core_sync_poll(struct dmdsm_core *c)
     if (!ended)
         return;
     struct dmdsm_motion_sync m = {.burst_id = c->sync_burst_id++,
-                                  .first_edge = since(now, first),
-                                  .last_edge = since(now, last),
+                                  .first_edge = dmdsm_core_extend(now, first),
+                                  .last_edge = dmdsm_core_extend(now, last),
                                   .edges = edges};
     uint8_t p[DMDSM_MOTION_SYNC_FIXED_SIZE];
     uint8_t frame[DMDSM_CORE_CTL_FRAME];

@@ -15,14 +15,10 @@ ADSTP only while a conversion sequence runs (ADSTART = 1).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bus import Peripheral, field
-
-if TYPE_CHECKING:
-    from .h743 import H743
+from .bus import Machine, Peripheral, field
 
 VREG_START_S, CAL_S, ADRDY_S = 10e-6, 200e-6, 2e-6
 DMAMUX_REQ_ADC1 = 9
@@ -47,7 +43,7 @@ class Adc(Peripheral):
 
     name, base, size, clock = "ADC1", 0x40022000, 0x100, (0xD8, 5)
 
-    def __init__(self, machine: H743) -> None:
+    def __init__(self, machine: Machine) -> None:
         super().__init__(machine)
         self.common = AdcCommon(machine)
 

@@ -8,10 +8,26 @@ which stops the CPU and fails the test that ran it with the rule's name.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
-if TYPE_CHECKING:
-    from .h743 import H743
+
+class Machine(Protocol):
+    """What a peripheral sees of its chip (`h743.H743`, which imports the peripherals, so they
+    name it by this protocol, not by an import back): time, CPU, rule checks and, as
+    attributes, the other peripherals."""
+
+    t: float
+    actions: int
+    faults: set[str]
+    irq_soon: bool
+    rev_id: int
+    rev_v: bool
+
+    def pc(self) -> int: ...
+
+    def violation(self, rule: str, detail: str) -> None: ...
+
+    def __getattr__(self, name: str) -> Any: ...  # uc, cpu_hz, rcc, adc, dma1, usart3, ...
 
 
 class RuleViolation(AssertionError):
@@ -36,7 +52,7 @@ class Peripheral:
     # RCC enable register (offset) and bit that clocks this block; None: always clocked
     clock: tuple[int, int] | None = None
 
-    def __init__(self, machine: H743) -> None:
+    def __init__(self, machine: Machine) -> None:
         self.m = machine
         self.regs: dict[int, int] = {}
         self.reset()
@@ -86,7 +102,7 @@ class Peripheral:
 class Plain(Peripheral):
     """Registers that only store what the firmware writes (pin multiplexing, MPU-free blocks)."""
 
-    def __init__(self, machine: H743, name: str, base: int, size: int = 0x400,
+    def __init__(self, machine: Machine, name: str, base: int, size: int = 0x400,
                  clock: tuple[int, int] | None = None) -> None:
         self.name, self.base, self.size, self.clock = name, base, size, clock
         super().__init__(machine)

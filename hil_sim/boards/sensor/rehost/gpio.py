@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from .bus import Peripheral, field
-
-if TYPE_CHECKING:
-    from .h743 import H743
+from .bus import Machine, Peripheral, field
 
 
 class Gpio(Peripheral):
@@ -15,7 +10,7 @@ class Gpio(Peripheral):
 
     name = "GPIO"
 
-    def __init__(self, machine: H743, port: str) -> None:
+    def __init__(self, machine: Machine, port: str) -> None:
         index = "ABCDEFGHIJK".index(port)
         self.name = f"GPIO{port}"
         self.base = 0x58020000 + 0x400 * index

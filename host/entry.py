@@ -1,12 +1,30 @@
-"""The `dmdsm` console entry point: SIGTERM and Ctrl-C are handled before the slow imports
-(numpy, scipy, h5py), so a signal at any moment exits cleanly with 143 or 130."""
+"""The `dmdsm` console entry point, the host's top layer: the commands' parser with the demo's
+`dmdsm demo` added; SIGTERM and Ctrl-C are handled before the slow imports (numpy, scipy,
+h5py), so a signal at any moment exits cleanly with 143 or 130."""
 
 from __future__ import annotations
 
+import argparse
 import signal
 import sys
 
-from .errors import Terminated, terminate
+from .commands.errors import Terminated, terminate
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole `dmdsm` parser: every command and `dmdsm demo`."""
+    from .commands import cli
+    from .demo import command as demo
+
+    return cli.build_parser(extra=(demo.add_parser,))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `dmdsm` (every command and `dmdsm demo`) without run()'s signal holding."""
+    from .commands import cli
+    from .demo import command as demo
+
+    return cli.main(argv, extra=(demo.add_parser,))
 
 
 def run(argv: list[str] | None = None) -> int:
@@ -18,7 +36,8 @@ def run(argv: list[str] | None = None) -> int:
     held = _hold_signals(pending)
     try:
         try:
-            from .cli import main
+            from .commands import cli  # noqa: F401 (the slow imports, with the signals held)
+            from .demo import command  # noqa: F401
         finally:
             _release_signals(held)
         if pending:

@@ -1,11 +1,11 @@
-"""`dmdsm demo`: the paper's experiments end to end on the emulator, through the same `dmdsm`
-commands and serial paths a user with hardware runs, into out/report.html.
+"""The demo's emulator session (both boards on ptys, `dmdsm` commands in-process), stages 1-3, 5.
 
 Stages: (1) ranging calibration on the block (t0, c), (2) the rig calibration of §IV-D
 (Table I with uncertainties next to the emulator's truth), (3) the aluminium block
 validation scan of §V-A2, (4) a household set scanned into a database, (5) material
 classification. Where a user re-mounts the rig or an object by hand, the demo writes the
 scene's name into the emulator's `scene` file (`dmdsm sim --link-dir DIR` watches it).
+Stage 4 is in household.py; run.py runs the five and writes the report.
 """
 
 from __future__ import annotations
@@ -13,17 +13,16 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from .page import Section, html_page, markdown
+from ..report.page import Section
+from ..scan.plan import ScanPlan
 
 PAPER_E = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
-US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
 TITLES = {
     "stage_ranging": "1. Ranging calibration (t0, c per modality; the stage as a ruler)",
     "stage_rig": "2. Scanner calibration with the rig (paper §IV-D, Table I)",
@@ -76,6 +75,22 @@ def _truth(sim: object) -> dict[str, np.ndarray]:
     return {"v": s.v / np.linalg.norm(s.v), "n": s.n / np.linalg.norm(s.n), "X_R": s.X_R}
 
 
+def write_plan(d: Demo, name: str, plan: ScanPlan) -> Path:
+    """out/plans/NAME.toml: the plan as a user would write it for `dmdsm scan --plan`."""
+    path = d.out / "plans" / f"{name}.toml"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(plan.to_toml())
+    return path
+
+
+def scan_into(d: Demo, plan: Path, db: str) -> dict:
+    """`dmdsm scan` of a plan into out/DB with the stage 1 and 2 results; its JSON summary."""
+    return json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
+                            str(d.out / "calibration.toml"), "--ranging",
+                            str(d.out / "ranging.json"), "--plan", str(plan), "--db",
+                            str(d.out / db), "--json").splitlines()[-1])
+
+
 def stage_ranging(d: Demo) -> Section:
     """Step the sensor away from the block's face: t0 per modality (c from 20 degC air)."""
     sec = Section(TITLES["stage_ranging"])
@@ -113,7 +128,7 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     from dmdsm.sim.physics.scene import table_frame
 
     from ..calibration.rig_file import read_raw
-    from .plots import rig_figure
+    from ..report.plots import rig_figure
 
     sec = Section(TITLES["stage_rig"])
     tr = _truth(d.sim)
@@ -162,15 +177,11 @@ def stage_block(d: Demo) -> Section:
 
     sec = Section(TITLES["stage_block"])
     d.mount("aluminium_block")
-    plan = d.out / "plans" / "aluminium_block.toml"
-    plan.parent.mkdir(exist_ok=True)
-    plan.write_text(_plan("aluminium_block", "aluminium", 30.0, 40.0,
-                          "[20.0]" if d.quick else "[12.0, 24.0]",
-                          "[0.0, 90.0, 180.0, 270.0]", 32.0, 4.0 if d.quick else 2.0, "both"))
-    s = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
-                         str(d.out / "calibration.toml"), "--ranging",
-                         str(d.out / "ranging.json"), "--plan", str(plan), "--db",
-                         str(d.out / "validation"), "--json").splitlines()[-1])
+    plan = ScanPlan("aluminium_block", material="aluminium", radius_mm=30.0, height_mm=40.0,
+                    levels_mm=[20.0] if d.quick else [12.0, 24.0],
+                    angles_deg=[0.0, 90.0, 180.0, 270.0], half_width_mm=32.0,
+                    step_mm=4.0 if d.quick else 2.0, modality="both", turntable_radius_mm=60.0)
+    s = scan_into(d, write_plan(d, "aluminium_block", plan), "validation")
     truth = d.out / "block.toml"
     truth.write_text('shape = "box"\nsize_mm = [50.0, 30.0, 40.0]\n')
     rec = json.loads(d.run("reconstruct", s["file"], "--truth", str(truth), "--plot",
@@ -204,98 +215,6 @@ def stage_block(d: Demo) -> Section:
     return sec
 
 
-def _plan(obj: str, material: str, radius: float, height: float, levels: str, angles: str,
-          half: float, step: float, modality: str, fly: bool = False) -> str:
-    # fly: 12 shots per waveform at 1 kHz, step_mm apart (2 mm: 167 mm/s; docs/scanning.md)
-    extra = 'mode = "fly"\naverage = 12\n' if fly else ""
-    return (f'[sample]\nobject_id = "{obj}"\nmaterial = "{material}"\n[object]\n'
-            f"radius_mm = {radius:.1f}\nheight_mm = {height:.1f}\n"
-            f"turntable_radius_mm = 60.0\n[scan]\nlevels_mm = {levels}\n"
-            f"angles_deg = {angles}\nhalf_width_mm = {half:.1f}\nstep_mm = {step}\n"
-            f'modality = "{modality}"\n{extra}')
-
-
-def stage_household(d: Demo) -> Section:
-    """Every household object scanned into one database (Fig. 4 contours)."""
-    from dmdsm.sim.physics.objects import HOUSEHOLD, bounding_size, household
-
-    from ..scan.points import scan_points
-    from ..scan.scanfile import read_scan
-    from .plots import contour_figure
-
-    sec = Section(TITLES["stage_household"])
-    names = list(HOUSEHOLD)
-    rows = []
-    for name in names:
-        material = HOUSEHOLD[name][0]
-        obj = household(name)[0]
-        w, dep, height = bounding_size(obj)
-        boxy = type(obj.shape).__name__ == "Box"
-        radius = float(np.hypot(w, dep) / 2) if boxy else w / 2
-        mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
-        d.mount(name)
-        runs = {}
-        for mode, db in (("step", "db"), ("fly", "db_fly")):
-            plan = d.out / "plans" / f"{name}{'' if mode == 'step' else '_fly'}.toml"
-            plan.write_text(_plan(name, material, radius + 1.0, height,
-                                  f"[{min(0.5 * height, 40.0):.1f}]",
-                                  "[0.0]" if d.quick else "[0.0, 90.0, 180.0, 270.0]",
-                                  0.35 * w, (8.0 if d.quick else 4.0) if mode == "step"
-                                  else 2.0, mod, fly=mode == "fly"))
-            runs[mode] = json.loads(d.run("scan", *d.ports, "--no-home", "--calibration",
-                                          str(d.out / "calibration.toml"), "--ranging",
-                                          str(d.out / "ranging.json"), "--plan", str(plan),
-                                          "--db", str(d.out / db), "--json").splitlines()[-1])
-        s = runs["step"]
-        scan = read_scan(Path(s["file"]), waveforms=False)
-        p = scan.points
-        n_oa = int(np.isfinite(p["distance_oa_mm"]).sum())
-        n_us = int(np.isfinite(p["distance_us_mm"]).sum())
-        fly = runs["fly"]
-        fly_scan = read_scan(Path(fly["file"]), waveforms=False).points
-        fly_oa = int(np.isfinite(fly_scan["distance_oa_mm"]).sum())
-        fly_us = int(np.isfinite(fly_scan["distance_us_mm"]).sum())
-        rows.append([name, material, mod, s["points"], n_oa, n_us, s["points_per_s"],
-                     fly["points"], fly_oa, fly_us, fly["points_per_s"]])
-        sec.values[name] = {"material": material, "modality": mod, "points": s["points"],
-                            "oa_points": n_oa, "us_points": n_us,
-                            "fly": {"points": fly["points"], "oa_points": fly_oa,
-                                    "us_points": fly_us,
-                                    "points_per_s": fly["points_per_s"]}}
-        if name in ("soda_can", "apple_red", "foam_block", "glass_jar", "tissue_box",
-                    "steel_can", "plastic_bottle"):
-            contour_figure(scan_points(scan), d.out / f"fig4_{name}.png", title=name)
-            sec.figures.append((d.out / f"fig4_{name}.png", f"{name} ({material}): "
-                                f"reconstructed contour, OA squares, US crosses"))
-        expected = {"us": n_oa == 0 and n_us > 0, "oa": n_us == 0 and n_oa > 0,
-                    "both": n_oa > 0 and n_us > 0}[mod]
-        fly_expected = {"us": fly_oa == 0 and fly_us > 0, "oa": fly_us == 0 and fly_oa > 0,
-                        "both": fly_oa > 0 and fly_us > 0}[mod]
-        sec.ok &= expected and fly_expected
-    sec.table(["object", "material", "modality", "points", "OA points", "US points",
-               "points/s", "fly: points", "OA", "US", "points/s"], rows)
-
-    def rate(n: int, r: int) -> float:  # points over the set / its scanning time
-        return sum(x[n] for x in rows) / max(sum(x[n] / x[r] for x in rows if x[r]), 1e-9)
-
-    rates = {"step": rate(3, 6), "fly": rate(7, 10)}  # points/s over the set
-    d.rates = rates
-    sec.text.append(
-        f"Each object is scanned twice: step and shoot ({rates['step']:.1f} "
-        f"points/s over the set, into {d.out / 'db'}) and fly ("
-        f"{rates['fly']:.1f} points/s, 2 mm apart, into {d.out / 'db_fly'}: "
-        f"each line one constant-speed move, every waveform placed by the X STEP pulses "
-        f"time-stamped on the sensor board). The emulator runs moves 8x faster than the "
-        f"machine but a fly line only as fast as it can compute the shots (about 1.5x real "
-        f"time, `python bench/emulator.py`), so these rates understate fly; `python "
-        f"bench/scan.py` compares the two at x1 (docs/scanning.md). The "
-        f"classification below trains on the step-and-shoot database: a fly waveform averages "
-        f"its 12 shots over 2 mm of travel, which on a curved surface smears the pulse the "
-        f"classifier reads (docs/scanning.md).")
-    sec.text.append(f"Database: {d.out / 'db'} (`dmdsm db list --db {d.out / 'db'}`).")
-    return sec
-
-
 def stage_classify(d: Demo) -> Section:
     """BOSS and MiniRocket on the database, through `dmdsm classify evaluate`."""
     sec = Section(TITLES["stage_classify"])
@@ -322,69 +241,3 @@ def stage_classify(d: Demo) -> Section:
     sec.text.append("Simulated data: the emulator's materials are models (docs/sim.md), so "
                     "these figures show the pipeline works, not that the paper is reproduced.")
     return sec
-
-
-def keep_previous_databases(out: Path) -> None:
-    """Each demo scans into fresh databases: a previous run's `db` and `validation` (and its
-    calibrations) move to out/previous/<name>-<time of their last change>, so the classifier
-    never mixes runs (or sample rates) and nothing a user may want is deleted."""
-    for name in ("db", "db_fly", "validation", "ranging.json", "calibration.toml"):
-        old = out / name
-        if old.exists() and not old.is_symlink():
-            stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(old.stat().st_mtime))
-            target = out / "previous" / f"{old.stem}-{stamp}{old.suffix}"
-            n = 1
-            while target.exists():
-                n += 1
-                target = out / "previous" / f"{old.stem}-{stamp}-{n}{old.suffix}"
-            target.parent.mkdir(exist_ok=True)
-            old.rename(target)
-
-
-def run_demo(out_dir: str, command: Callable[[list[str]], int], quick: bool = False,
-             speed: float = 8.0, as_json: bool = False, stage_firmware: str = "") -> int:
-    """Run every stage through `command` (the `dmdsm` entry point: argv -> exit code), write
-    out/report.html, out/report.md and out/summary.json; 0 if all passed. as_json: progress
-    to stderr, the summary as one JSON line on stdout. stage_firmware: a Marlin ELF run
-    under simavr as the stage board, at most 2x real time (simavr's pace on one core)."""
-    say = sys.stderr if as_json else sys.stdout
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    keep_previous_databases(out)
-    t_all = time.perf_counter()
-    if stage_firmware:
-        speed = min(speed, 2.0)
-    d = Demo(out, quick, speed, command, stage_firmware)
-    sections: list[Section] = []
-    stages = [stage_ranging, stage_rig, stage_block, stage_household, stage_classify]
-    try:
-        for stage in stages:
-            t0 = time.perf_counter()
-            try:
-                got = stage(d)
-            except (RuntimeError, ValueError, OSError) as e:
-                got = Section(TITLES[stage.__name__], ok=False, text=[str(e)])
-            sec = got[0] if isinstance(got, tuple) else got
-            sec.seconds = time.perf_counter() - t0
-            sections.append(sec)
-            print(f"{sec.title}: {'ok' if sec.ok else 'FAILED'} ({sec.seconds:.0f} s)",
-                  flush=True, file=say)
-            if not sec.ok and stage in (stage_ranging, stage_rig):
-                break  # later stages need these
-    finally:
-        d.close()
-    title = f"dmdsm demo{' (quick)' if quick else ''}: the paper's experiments on the emulator"
-    total = time.perf_counter() - t_all
-    sections[-1].text.append(f"Total {total:.0f} s on this machine.")
-    (out / "report.md").write_text(markdown(title, sections))
-    (out / "report.html").write_text(html_page(title, sections))
-    summary = {"ok": bool(all(s.ok for s in sections)), "seconds": total,
-               "report": str(out / "report.html"), "household_points_per_s": d.rates,
-               "stages": {s.title.split(".")[0]: {"title": s.title, "ok": bool(s.ok),
-                                                  "seconds": s.seconds, "values": s.values}
-                          for s in sections}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-    print(f"report: {out / 'report.html'} ({total:.0f} s)", file=say)
-    if as_json:
-        print(json.dumps(summary, default=float))
-    return 0 if all(s.ok for s in sections) and len(sections) == len(stages) else 1

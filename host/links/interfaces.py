@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Protocol
 if TYPE_CHECKING:  # types only: importing this module must not import the clients
     from dmdsm.protocol import Message
 
-    from .sensor import Shots
+    from .shots import Shots
 
 
 class StageMotion(Protocol):

@@ -14,7 +14,7 @@ import random
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import serial
@@ -22,6 +22,7 @@ import serial
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
 from dmdsm.protocol.spec import SAMPLE_DTYPES
 
+from .shots import Shots
 from .transport import LinkError, open_port
 
 log = logging.getLogger("dmdsm.sensor")
@@ -77,32 +78,6 @@ class AcquisitionLost(SensorError):
     def __init__(self, message: str, shots: Shots) -> None:
         super().__init__(message)
         self.shots = shots
-
-
-@dataclass
-class Shots:
-    """Waveforms of one acquisition, indexed by shot id (0 .. n-1 after arm)."""
-
-    samples: np.ndarray         # (n, n_samples) u16 means or u32 sums
-    received: np.ndarray        # bool per shot id
-    timestamp: np.ndarray       # device ticks of the first averaged edge
-    trigger_phase: np.ndarray   # ticks from the edge to the first sample
-    n_average: np.ndarray
-    config: dict = field(default_factory=dict)
-    device_dropped: int = 0     # shots the device dropped (its counter, during this run)
-    adc_overruns: int = 0       # bursts the ADC/DMA overran (device counter, this run)
-    integrity_faults: int = 0   # bursts dropped: DMA position disagreed with the timer
-    link_rejected: int = 0      # frames the host decoder rejected during this run
-    # host monotonic times (s): arm acknowledged, first byte after it, last shot decoded;
-    # armed -> first byte is the laser and capture time, first byte -> done the transfer
-    armed_s: float | None = None
-    first_byte_s: float | None = None
-    done_s: float | None = None
-
-    @property
-    def lost(self) -> np.ndarray:
-        """Shot ids that never arrived."""
-        return np.nonzero(~self.received)[0]
 
 
 @dataclass

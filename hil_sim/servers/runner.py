@@ -8,22 +8,18 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dmdsm.marlin_patch import load_machine
 
+from ..boards.interface import SensorBoardInterface, StageBoardInterface
 from ..boards.sensor.core_board import SensorBoard
 from ..boards.stage.marlin import MarlinEmulator, StageFaults
 from ..physics.objects import SCENES
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise
 from ..physics.signals import SensorModel, arrival_times_us
 from .faults import FaultyChannel, LinkFaults, parse_faults
-
-if TYPE_CHECKING:
-    from ..boards.sensor.rehost.board import RehostedSensor
-    from ..boards.stage.avr_lockstep import AvrStageBoard
 
 STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
 
@@ -77,14 +73,14 @@ class Simulation:
         self.scene = Scene(v=np.array(cfg.v), n=np.array(cfg.n), X_R=np.array(cfg.X_R),
                            objects=SCENES[cfg.scene]() + list(cfg.objects))
         self.model = SensorModel(temperature_c=cfg.temperature_c)
-        self.stage: MarlinEmulator | AvrStageBoard
+        self.stage: StageBoardInterface  # MarlinEmulator or AvrStageBoard
         if cfg.stage_firmware:
             from ..boards.stage.avr_lockstep import AvrStageBoard
             self.stage = AvrStageBoard(cfg.stage_firmware, self.limits, seed=cfg.seed,
                                        faults=stage_faults)
         else:
             self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
-        self.sensor: SensorBoard | RehostedSensor
+        self.sensor: SensorBoardInterface  # SensorBoard or RehostedSensor
         sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
             from ..boards.sensor.rehost.board import RehostedSensor  # unicorn only when asked

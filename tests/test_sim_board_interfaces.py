@@ -1,0 +1,70 @@
+"""Every emulated board offers what Simulation drives: its Protocol's members, with the same
+parameters (hil_sim/boards/interface.py). A board that renames or drops one fails here."""
+
+import inspect
+
+import pytest
+
+from dmdsm.sim.boards.interface import SensorBoardInterface, StageBoardInterface
+from dmdsm.sim.boards.sensor.core_board import SensorBoard
+from dmdsm.sim.boards.sensor.rehost.board import RehostedSensor
+from dmdsm.sim.boards.stage.avr_lockstep import AvrStageBoard
+from dmdsm.sim.boards.stage.marlin import MarlinEmulator
+from dmdsm.sim.servers.runner import SimConfig, Simulation
+
+
+def members(protocol: type) -> dict[str, inspect.Signature | None]:
+    """The Protocol's methods (name -> signature) and attributes (name -> None)."""
+    out: dict[str, inspect.Signature | None] = {}
+    for klass in protocol.__mro__:
+        if klass is object or not getattr(klass, "_is_protocol", False):
+            continue
+        for name, value in vars(klass).items():
+            if callable(value) and not name.startswith("_"):
+                out.setdefault(name, inspect.signature(value))
+        for name in getattr(klass, "__annotations__", {}):
+            out.setdefault(name, None)
+    return out
+
+
+def params(sig: inspect.Signature) -> list[str]:
+    return [p.name for p in sig.parameters.values() if p.name != "self"]
+
+
+BOARDS = [(SensorBoardInterface, SensorBoard), (SensorBoardInterface, RehostedSensor),
+          (StageBoardInterface, MarlinEmulator), (StageBoardInterface, AvrStageBoard)]
+
+
+@pytest.mark.parametrize("protocol, board", BOARDS, ids=lambda x: x.__name__)
+def test_each_board_has_its_interface_methods_with_the_same_parameters(protocol, board):
+    for name, sig in members(protocol).items():
+        if sig is None:
+            continue
+        assert callable(getattr(board, name, None)), f"{board.__name__} lacks {name}()"
+        assert params(inspect.signature(getattr(board, name))) == params(sig), (board, name)
+
+
+def test_the_interfaces_declare_what_the_simulation_calls():
+    assert set(members(SensorBoardInterface)) == {"receive", "step", "sampling",
+                                                  "link_blocked"}
+    assert set(members(StageBoardInterface)) == {"receive", "step", "position_at",
+                                                 "step_edges"}
+
+
+def test_the_default_boards_carry_the_declared_attributes():
+    sim = Simulation(SimConfig(seed=0))
+    for protocol, board in ((SensorBoardInterface, sim.sensor), (StageBoardInterface,
+                                                                 sim.stage)):
+        for name in members(protocol):
+            assert hasattr(board, name), (type(board).__name__, name)
+    sim.close()
+
+
+def test_a_board_without_a_method_fails_the_check():
+    class Broken:
+        def receive(self, data: bytes, now: float) -> None: ...
+        def step(self, when: float) -> bytes: ...  # renamed parameter
+
+    with pytest.raises(AssertionError):
+        test_each_board_has_its_interface_methods_with_the_same_parameters(
+            StageBoardInterface, Broken)

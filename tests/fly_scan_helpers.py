@@ -1,4 +1,4 @@
-"""Shared by the fly-scan tests (tests/host, and tests/stage against the stage under test):
+"""Shared by the fly-scan tests (tests/e2e, and tests/stage against the stage under test):
 the ranging calibration and plan on the emulator's block, every shot's true pose, the CLI."""
 
 import sys

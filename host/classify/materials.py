@@ -24,6 +24,9 @@ BOSS_PER_CLASS = 20  # BOSS trains on at most this many windows per class and mo
 # its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set), 20-40 s per fit here
 WINDOW = 128  # samples per window (38.4 us at 3.333 MS/s)
 PRE = 8       # samples kept before the arrival
+SHORTEST_WINDOW = 16  # samples (4.8 us): the shortest window either classifier is given
+BOSS_WORD_MIN = 16    # BOSS's shortest word window, samples, where the window allows it
+BOSS_WORD_PROP = 0.34  # BOSS's longest word window as a share of the window
 
 
 class ClassifyError(ValueError):
@@ -130,14 +133,33 @@ def assemble(paths: list[Path], window: int = WINDOW) -> Dataset:
     return ds.subset(ds.usable(MODS))  # points without any arrival carry no signal
 
 
-def make_classifier(name: str, seed: int = 0) -> object:
-    """An aeon classifier: 'boss' (BOSSEnsemble, alphabet_size=4) or 'minirocket' (its
-    standard ridge, with probabilities from CalibratedRidge)."""
+def boss_word_windows(window: int) -> tuple[int, int]:
+    """BOSS's word windows (shortest, longest) in samples for windows of `window` samples:
+    16..43 for the default 128 (4.5-12 us: a few carrier cycles to one pulse); a window too
+    short for 16 (47 samples or fewer) gets one word window of 0.34 of it, the longest that
+    fits, instead of aeon's ValueError."""
+    longest = int(window * BOSS_WORD_PROP)
+    return min(BOSS_WORD_MIN, longest), longest
+
+
+def check_window(window: int) -> None:
+    """Refuse, in one line, a window neither classifier is given (shorter than 16 samples)."""
+    if window < SHORTEST_WINDOW:
+        raise ClassifyError(f"windows must be at least {SHORTEST_WINDOW} samples for either "
+                            f"classifier (got {window}): use a longer --window")
+
+
+def make_classifier(name: str, window: int, seed: int = 0) -> object:
+    """An aeon classifier for windows of `window` samples: 'boss' (BOSSEnsemble,
+    alphabet_size=4, word windows from boss_word_windows) or 'minirocket' (its standard
+    ridge, with probabilities from CalibratedRidge)."""
+    check_window(window)
     if name == "boss":
         from aeon.classification.dictionary_based import BOSSEnsemble
-        # word windows 16..43 samples (4.5-12 us: a few carrier cycles to one pulse)
-        return BOSSEnsemble(alphabet_size=4, min_window=16, max_win_len_prop=0.34,
-                            max_ensemble_size=50, random_state=seed)
+        shortest, _ = boss_word_windows(window)
+        return BOSSEnsemble(alphabet_size=4, min_window=shortest,
+                            max_win_len_prop=BOSS_WORD_PROP, max_ensemble_size=50,
+                            random_state=seed)
     if name == "minirocket":
         from aeon.classification.convolution_based import MiniRocketClassifier
         from sklearn.pipeline import make_pipeline
@@ -201,6 +223,7 @@ def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MOD
     """Train the per-modality classifiers and the fusion on the points that have a window in
     one of `modalities`; lone_pulses: also learn to tell OA from US windows (live use)."""
     _check_modalities(modalities)
+    check_window(ds.window)
     ds = ds.subset(ds.usable(modalities))
     classes = np.unique(ds.y)
     if len(classes) < 2:
@@ -220,7 +243,8 @@ def fit(ds: Dataset, name: str, seed: int = 0, modalities: tuple[str, ...] = MOD
         if name == "boss":
             idx = np.concatenate([rng.permutation(idx[ds.y[idx] == c])[:BOSS_PER_CLASS]
                                   for c in np.unique(ds.y[idx])])
-        models[m] = make_classifier(name, seed).fit(ds.X[m][idx][:, None, :], ds.y[idx])
+        models[m] = make_classifier(name, ds.window, seed).fit(ds.X[m][idx][:, None, :],
+                                                               ds.y[idx])
         if name == "boss":
             training[m] = (ds.X[m][idx], ds.y[idx])
         mc = np.array([(ds.y[idx] == c).sum() for c in classes], float) + 1.0
@@ -247,7 +271,7 @@ def fit_modality(ds: Dataset, seed: int = 0) -> object:
     y = np.concatenate([[m] * int(ds.has[m].sum()) for m in MODS])
     if len(np.unique(y)) < 2:
         raise ClassifyError("telling lone OA from US pulses needs windows of both modalities")
-    return make_classifier("minirocket", seed).fit(X[:, None, :], y)
+    return make_classifier("minirocket", X.shape[1], seed).fit(X[:, None, :], y)
 
 
 def predict_lone(model: FusedModel, x: np.ndarray) -> np.ndarray:
@@ -288,6 +312,7 @@ def evaluate_random(ds: Dataset, name: str, trials: int = 50, test_size: float =
 
     classes = np.unique(ds.y)
     _check_modalities(modalities)
+    check_window(ds.window)
     ds = ds.subset(ds.usable(modalities))
     cm = np.zeros((len(classes), len(classes)), int)
     split = StratifiedShuffleSplit(n_splits=trials, test_size=test_size, random_state=seed)
@@ -302,6 +327,7 @@ def evaluate_loo(ds: Dataset, name: str, seed: int = 0,
     """Leave one object out: train on the other objects, test on this one's points."""
     classes = np.unique(ds.y)
     _check_modalities(modalities)
+    check_window(ds.window)
     ds = ds.subset(ds.usable(modalities))
     cm = np.zeros((len(classes), len(classes)), int)
     for obj in np.unique(ds.groups):

@@ -206,7 +206,7 @@ def _rebuild(a: dict[str, np.ndarray], prov: dict, path: Path) -> FusedModel:
         X, y = a[f"{m}.X"], a[f"{m}.y"]
         if X.ndim != 2 or X.shape[0] != len(y) or X.shape[1] != int(prov["window"]):
             raise ValueError(f"{m}: training windows of the wrong shape")
-        clf = make_classifier("boss", seed).fit(X[:, None, :], y)
+        clf = make_classifier("boss", X.shape[1], seed).fit(X[:, None, :], y)
         if not np.allclose(clf.predict_proba(X[:CHECK_ROWS, None, :]), a[f"{m}.check"],
                            atol=1e-9):
             raise ClassifyError(f"{path} was trained with aeon {prov.get('aeon')}; this aeon "

@@ -18,22 +18,23 @@ import numpy as np
 from .materials import MODS, WINDOW, Dataset, fit, predict_lone
 
 
-def tiny_dataset(n_per_class: int = 8, seed: int = 0) -> Dataset:
-    """Two 'materials' of decaying tones, both modalities, in the pipeline's window shape."""
+def tiny_dataset(n_per_class: int = 8, seed: int = 0, window: int = WINDOW) -> Dataset:
+    """Two 'materials' of decaying tones, both modalities, in the pipeline's window shape
+    (window samples long)."""
     rng = np.random.default_rng(seed)
-    t = np.arange(WINDOW)
+    t = np.arange(window)
     X: dict[str, list[np.ndarray]] = {m: [] for m in MODS}
     y = []
     for k, name in enumerate(["a", "b"]):
         for _ in range(n_per_class):
             for m, f in (("oa", 0.05), ("us", 0.12)):
                 w = np.sin(2 * np.pi * (f + 0.04 * k) * t) * np.exp(-t / (12 + 10 * k))
-                X[m].append(w + 0.1 * rng.standard_normal(WINDOW))
+                X[m].append(w + 0.1 * rng.standard_normal(window))
             y.append(name)
     n = len(y)
     return Dataset({m: np.array(v, np.float32) for m, v in X.items()},
                    {m: np.ones(n, bool) for m in MODS}, np.array(y),
-                   np.array([f"{c}{i % 2}" for i, c in enumerate(y)]), 3.333e6, WINDOW)
+                   np.array([f"{c}{i % 2}" for i, c in enumerate(y)]), 3.333e6, window)
 
 
 def warm_up() -> float:

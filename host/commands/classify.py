@@ -11,6 +11,7 @@ import numpy as np
 
 from ..classify.materials import (
     MODS,
+    SHORTEST_WINDOW,
     WINDOW,
     ClassifyError,
     assemble,
@@ -35,8 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("classify", help="train, evaluate and use material classifiers")
     psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     common = argparse.ArgumentParser(add_help=False)
+    longest = config_range("n_samples")[1]
     common.add_argument("--window", type=int, default=WINDOW,
-                        help=f"samples per window (default {WINDOW}); a model only takes its own")
+                        help=f"samples per window, {SHORTEST_WINDOW}..{longest} for both "
+                             f"classifiers (default {WINDOW}); a model only takes its own")
     common.add_argument("--json", action="store_true", help="machine-readable output")
 
     data = argparse.ArgumentParser(add_help=False, parents=[common])  # train, evaluate
@@ -108,8 +111,9 @@ def cmd_classify(args: argparse.Namespace) -> int:
 
     try:
         hi = config_range("n_samples")[1]  # a window longer than any waveform
-        if not 16 <= args.window <= hi:
-            raise ClassifyError(f"--window must be 16..{hi} samples (got {args.window})")
+        if not SHORTEST_WINDOW <= args.window <= hi:
+            raise ClassifyError(f"--window must be {SHORTEST_WINDOW}..{hi} samples (got "
+                                f"{args.window})")
         for flag in ("trials", "boss_trials"):
             if getattr(args, flag, 1) < 1:
                 raise ClassifyError(f"--{flag.replace('_', '-')} must be at least 1 (got "

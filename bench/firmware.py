@@ -5,7 +5,8 @@ measured on the ARM build under QEMU (1 kHz emulated laser, UART over TCP) and m
 exact NUCLEO ELF on the rehosted H743 (hil_sim/boards/sensor/rehost: 1 kHz laser, USART3 at its BRR
 rate, in simulated time), for 1024 and 8192 samples, with and without on-board averaging.
 "Sustainable" = shots per second that reach the host as waveforms (averaged shots count
-n_average times); drops and sample-integrity faults are the device's own counters.
+n_average times); skipped triggers (the link was busy: by design, not a loss) and
+sample-integrity faults are the device's own counters.
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import serial
 
+from dmdsm.host.links.link_rate import waveform_wire_bytes
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
 from dmdsm.sim.boards.sensor.qemu import QemuSensor
 
@@ -54,12 +55,9 @@ def footprint(board: str) -> dict[str, int]:
 
 
 def wire_bytes(n_samples: int) -> int:
-    """Wire size of one u16 waveform frame of n_samples (worst-case COBS)."""
-    m = Message("waveform", shot_id=0, timestamp=0, trigger_phase=0, n_average=1,
-                pretrigger=0, sample_rate_div=1, sample_format=0, modality=0,
-                shots_dropped=0, adc_overruns=0, integrity_faults=0, sync_steps=0,
-                samples=np.full(n_samples, 0x0101, "<u2"))
-    return len(encode_frame(m))
+    """Wire size of one u16 waveform frame of n_samples (worst-case COBS), as the host's
+    acquire summary and `dmdsm info` give it."""
+    return waveform_wire_bytes(n_samples)
 
 
 def nucleo_rate(n_samples: int, n_average: int, adc_hz: float = 240e6 / 72) -> float:
@@ -70,7 +68,8 @@ def nucleo_rate(n_samples: int, n_average: int, adc_hz: float = 240e6 / 72) -> f
 
 
 def qemu_rate(url: str, n_samples: int, n_average: int, seconds: float) -> tuple[float, int]:
-    """Measured delivered shots/s and device-side drops over `seconds` of continuous arm."""
+    """Measured delivered shots/s and triggers the device skipped over `seconds` of continuous
+    arm."""
     port = serial.serial_for_url(url, timeout=0.05)
     dec = FrameDecoder()
 
@@ -89,20 +88,20 @@ def qemu_rate(url: str, n_samples: int, n_average: int, seconds: float) -> tuple
                 n_average=n_average, pretrigger=0, trigger_edge=0, modality=0,
                 sample_format=0, trigger_timeout_ms=0))
     cmd(Message("arm", seq=3, n_shots=0))
-    waves, t_start, first_drop = [], None, None
+    waves, t_start, first_skip = [], None, None
     end = time.monotonic() + seconds + 1.0
     while time.monotonic() < end:
         for m in dec.feed(port.read(65536)):
             if m.name != "waveform":
                 continue
             if t_start is None:  # timing starts at the first waveform
-                t_start, first_drop = time.monotonic(), m.shots_dropped
+                t_start, first_skip = time.monotonic(), m.triggers_skipped
                 end = t_start + seconds
             waves.append(m)
     cmd(Message("disarm", seq=4))
     port.close()
     dt = time.monotonic() - t_start
-    return len(waves) * n_average / dt, waves[-1].shots_dropped - first_drop
+    return len(waves) * n_average / dt, waves[-1].triggers_skipped - first_skip
 
 
 def rehost_rate(n_samples: int, n_average: int, seconds: float) -> dict:
@@ -137,7 +136,7 @@ def rehost_rate(n_samples: int, n_average: int, seconds: float) -> dict:
     after = cmd(Message("disarm", seq=4)) and cmd(Message("get_status", seq=5))
     waves = [m for m in got if m.name == "waveform"]
     return {"rate": len(waves) * n_average / dt,
-            "drops": after.shots_dropped - before.shots_dropped,
+            "skipped": after.triggers_skipped - before.triggers_skipped,
             "integrity": after.integrity_faults - before.integrity_faults,
             "overruns": after.adc_overruns - before.adc_overruns,
             "violation": sim.sensor.violation, "wall_per_sim": (time.monotonic() - wall) / dt}
@@ -150,23 +149,23 @@ def main() -> int:
         print(f"{board:14s} " + ", ".join(f"{k} {v / 1024:.1f} KiB" for k, v in used.items()))
     print("\nsustainable shot rate (shots/s reaching the host, u16 samples):")
     print(f"{'samples':>8} {'n_avg':>6} {'frame B':>8} {'NUCLEO 2 Mbaud':>15} "
-          f"{'QEMU measured':>14} {'QEMU drops':>10} {'rehost':>8} {'drops':>6} "
+          f"{'QEMU measured':>14} {'QEMU skips':>10} {'rehost':>8} {'skips':>6} "
           f"{'integrity':>9} {'overruns':>8} {'wall/sim':>8}")
     with QemuSensor() as q:
         for n in (1024, 8192):
             for avg in (1, 16):
-                rate, drops = qemu_rate(q.url, n, avg, seconds=3.0)
+                rate, skips = qemu_rate(q.url, n, avg, seconds=3.0)
                 r = rehost_rate(n, avg, seconds=1.0)
                 if r["violation"] is not None:
                     print(f"rehosted NUCLEO halted: {r['violation']}")
                     return 1
                 print(f"{n:>8} {avg:>6} {wire_bytes(n):>8} {nucleo_rate(n, avg):>15.1f} "
-                      f"{rate:>14.1f} {drops:>10} {r['rate']:>8.1f} {r['drops']:>6} "
+                      f"{rate:>14.1f} {skips:>10} {r['rate']:>8.1f} {r['skipped']:>6} "
                       f"{r['integrity']:>9} {r['overruns']:>8} {r['wall_per_sim']:>8.1f}")
     print("\nQEMU and the rehost: 1 kHz emulated laser, so 1000 shots/s is the ceiling there; "
-          "drops mean the link, not the capture, is the limit (each drop is reported in the "
-          "waveform stream). The rehost's rate is in simulated time over 1 s; wall/sim is "
-          "the host seconds it took per simulated second.")
+          "skipped triggers mean the link, not the capture, is the limit (counted in every "
+          "waveform, no shot id lost). The rehost's rate is in simulated time over 1 s; "
+          "wall/sim is the host seconds it took per simulated second.")
     return 0
 
 

@@ -42,7 +42,7 @@ def sensor_rate(n_samples: int, rep_rate: float, shots: int) -> None:
         print(f"sensor {n_samples:5d} samples: {n / wall:8.1f} shots/s delivered, "
               f"{mb:6.2f} MB/s, host CPU {cpu / max(n, 1) * 1e6:7.1f} us/shot "
               f"({100 * cpu / wall:4.1f} % of one core); lost {len(got.lost)} "
-              f"(device dropped {got.device_dropped}); emulator laser {rep_rate:g}/s")
+              f"(board skipped {got.triggers_skipped} triggers); emulator laser {rep_rate:g}/s")
         sc.close()
     finally:
         stop(p)

@@ -45,7 +45,7 @@ def _messages() -> list[tuple[str, Message]]:
     cfg = dict(n_samples=1024, sample_rate_div=1, n_average=16, pretrigger=64, trigger_edge=0,
                modality=0, sample_format=0, trigger_timeout_ms=1000)
     wf = dict(shot_id=7, timestamp=480_000_123, trigger_phase=37, n_average=16, pretrigger=8,
-              sample_rate_div=1, modality=1, shots_dropped=2, adc_overruns=0, integrity_faults=3,
+              sample_rate_div=1, modality=1, triggers_skipped=2, adc_overruns=0, integrity_faults=3,
               sync_steps=40_321)
     return [
         ("ping", Message("ping", seq=1, nonce=0xDEADBEEF)),
@@ -65,7 +65,7 @@ def _messages() -> list[tuple[str, Message]]:
         ("get_status", Message("get_status", seq=8)),
         ("status", Message(
             "status", seq=8, flags=1, state=1, last_error=7, uptime_ms=123456,
-            shots_remaining=42, triggers=1000, shots_sent=990, shots_dropped=10,
+            shots_remaining=42, triggers=1000, shots_sent=990, triggers_skipped=10,
             adc_overruns=0, no_trigger_timeouts=1, rx_frames=50, rx_crc_errors=2,
             rx_malformed=1, rx_oversize=0, integrity_faults=4)),
         ("clock_sync", Message("clock_sync", seq=9, host_time_ns=1_763_800_000_123_456_789)),

@@ -11,7 +11,7 @@ import numpy as np
 
 from dmdsm.host.links.sensor import ClockSync
 
-NO_CHANGE = {"shots_dropped": 0, "adc_overruns": 0, "integrity_faults": 0}
+NO_CHANGE = {"triggers_skipped": 0, "adc_overruns": 0, "integrity_faults": 0}
 
 
 class FakeSensor:

@@ -14,6 +14,8 @@ import numpy as np
 from dmdsm.marlin_patch import load_machine
 
 from ..links.config import load_config, resolve_port
+from ..links.link_rate import link_rate
+from ..links.sensor import config_range
 from .errors import check_output
 from .options import CONFIG_HELP, SENSOR_HELP, STAGE_HELP
 
@@ -46,12 +48,19 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("acquire", parents=[common], help="record shots into an HDF5 file")
     p.add_argument("--sensor", help=SENSOR_HELP)
-    p.add_argument("--shots", type=int, required=True, help="waveforms to record")
-    p.add_argument("--average", type=int, default=None, help="shots averaged on board")
-    p.add_argument("--samples", type=int, default=None, help="samples per shot")
+    p.add_argument("--shots", type=int, required=True,
+                   help="waveforms to record: exactly this many are written (required)")
+    avg, samples = config_range("n_average"), config_range("n_samples")
+    p.add_argument("--average", type=int, default=None,
+                   help=f"laser shots averaged on board per waveform, {avg[0]}..{avg[1]} "
+                        "(default: the board's setting, 1 after power-up)")
+    p.add_argument("--samples", type=int, default=None,
+                   help=f"samples per waveform, {samples[0]}..{samples[1]} (default: the "
+                        "board's setting, 1024 after power-up)")
     p.add_argument("-o", "--output", type=Path, required=True,
-                   help="FILE.h5 to write (an existing file is kept unless --force)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing --output")
+                   help="FILE.h5 to write (required; an existing file is kept unless --force)")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing --output (default: refuse)")
     p.set_defaults(func=cmd_acquire)
 
     p = sub.add_parser("stage", help="home, move, where, stop")
@@ -116,11 +125,17 @@ def cmd_info(args: argparse.Namespace) -> int:
                 "config": dict(sc.request("get_config").fields), "status": sc.status()}
     finally:
         sc.close()
+    cfg = info["config"]
+    rate = link_rate(cfg["n_samples"], cfg["n_average"], cfg["sample_format"])
+    info["link"] = {"wire_bytes": rate.wire_bytes, "waveforms_per_s": round(rate.waveforms_hz, 1),
+                    "link_waveforms_per_s": round(rate.link_hz, 1), "limit": rate.limit,
+                    "skipped_share": round(rate.skipped_share, 3)}
     i = info["identity"]
     _out(args, info, f"{info['port']}: {i['board']}, firmware {i['fw_major']}.{i['fw_minor']}."
          f"{i['fw_patch']}, protocol {i['protocol_version']}, spec {i['spec_hash']}\n"
          f"config: " + " ".join(f"{k}={v}" for k, v in info["config"].items()) + "\n"
-         "status: " + " ".join(f"{k}={v}" for k, v in info["status"].items()))
+         "status: " + " ".join(f"{k}={v}" for k, v in info["status"].items()) + "\n"
+         f"link: {rate.text(cfg['n_samples'], cfg['n_average'])}")
     return 0
 
 
@@ -148,7 +163,7 @@ def write_shots(path: Path, shots: object, identity: dict, port: str,
         for name in ("received", "timestamp", "trigger_phase", "n_average"):
             d.create_dataset(name, data=getattr(shots, name))
         d.create_dataset("shot_id", data=np.arange(len(shots.received)))
-        d.attrs.update(device_dropped=getattr(shots, "device_dropped", 0),
+        d.attrs.update(triggers_skipped=getattr(shots, "triggers_skipped", 0),
                        adc_overruns=getattr(shots, "adc_overruns", 0),
                        integrity_faults=getattr(shots, "integrity_faults", 0),
                        link_rejected=getattr(shots, "link_rejected", 0),
@@ -194,21 +209,21 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     finally:
         sc.close()
     got = int(shots.received.sum())
+    rate = link_rate(shots.config["n_samples"], shots.config["n_average"],
+                     shots.config["sample_format"])
     summary = {"file": str(args.output), "shots": args.shots, "received": got,
-               "lost": int(len(shots.lost)), "device_dropped": shots.device_dropped,
-               "link_rejected": shots.link_rejected, "adc_overruns": shots.adc_overruns,
-               "integrity_faults": shots.integrity_faults}
-    hint = ""
-    if shots.device_dropped:  # the board had no room for them: the link is the bottleneck
-        summary["hint"] = hint = (
-            "the board dropped shots it could not send in time: average more shots per "
-            "waveform (--average), take fewer samples (--samples) or lower the laser's "
-            "repetition rate")
-    _out(args, summary, f"wrote {args.output}: {got} of {args.shots} shots; lost "
-         f"{len(shots.lost)} (device dropped {shots.device_dropped}, link rejected "
-         f"{shots.link_rejected} frames, ADC overruns {shots.adc_overruns}, integrity faults "
-         f"{shots.integrity_faults})"
-         + (f"\nhint: {hint}" if hint else ""))
+               "lost": int(len(shots.lost)), "link_rejected": shots.link_rejected,
+               "adc_overruns": shots.adc_overruns, "integrity_faults": shots.integrity_faults,
+               "triggers_skipped": shots.triggers_skipped,
+               "waveforms_per_s": round(rate.waveforms_hz, 1)}
+    text = (f"wrote {args.output}: {got} of {args.shots} shots; lost {len(shots.lost)} (link "
+            f"rejected {shots.link_rejected} frames, ADC overruns {shots.adc_overruns}, "
+            f"integrity faults {shots.integrity_faults})")
+    if shots.triggers_skipped:  # by design: the laser outpaces the link at these settings
+        summary["hint"] = rate.text(shots.config["n_samples"], shots.config["n_average"])
+        text += (f"\nthe board skipped {shots.triggers_skipped} laser shots while the link was "
+                 f"busy; {summary['hint']}")
+    _out(args, summary, text)
     return 0
 
 

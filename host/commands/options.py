@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-SENSOR_HELP = "sensor port (or DMDSM_SENSOR_PORT, dmdsm.toml)"
-STAGE_HELP = "stage port (or DMDSM_STAGE_PORT, dmdsm.toml)"
-CONFIG_HELP = "TOML file with [ports] and [calibration]"
+SENSOR_HELP = "sensor port (default: $DMDSM_SENSOR_PORT, else [ports] sensor of the config)"
+STAGE_HELP = "stage port (default: $DMDSM_STAGE_PORT, else [ports] stage of the config)"
+CONFIG_HELP = ("TOML file with [ports] and [calibration] (default: ./dmdsm.toml, else "
+               "~/.config/dmdsm/config.toml, if one exists)")
 
 
 def add_ports(p: argparse.ArgumentParser, sensor: bool = True, stage: bool = True) -> None:

@@ -363,7 +363,7 @@ class SensorClient:
             self.shots = None
         after = self.status()
         self._counters = after
-        shots.device_dropped = after["shots_dropped"] - before["shots_dropped"]
+        shots.triggers_skipped = after["triggers_skipped"] - before["triggers_skipped"]
         shots.adc_overruns = after["adc_overruns"] - before["adc_overruns"]
         shots.integrity_faults = after["integrity_faults"] - before["integrity_faults"]
         shots.link_rejected = self.decoder.stats.errors - rejected0
@@ -381,7 +381,8 @@ class SensorClient:
 
     def stream_stop(self) -> tuple[list[Message], dict]:
         """Disarm, wait for the link to go quiet, and return the streamed waveforms and
-        the device counters' change over the stream (dropped, overruns, integrity)."""
+        the device counters' change over the stream (skipped triggers, overruns, integrity
+        faults; only the last two are losses: shots.LOSS_COUNTERS)."""
         before = self._stream_before
         try:
             self.disarm()
@@ -396,7 +397,7 @@ class SensorClient:
                 got, self.stream = self.stream or [], None
         self._counters = after
         change = {k: after[k] - before[k]
-                  for k in ("shots_dropped", "adc_overruns", "integrity_faults")}
+                  for k in ("triggers_skipped", "adc_overruns", "integrity_faults")}
         return got, change
 
     def _collect(self, shots: Shots, n: int, cfg: dict, timeout_s: float | None,

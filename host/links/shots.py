@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+LOSS_COUNTERS = ("adc_overruns", "integrity_faults")  # device counters of real losses
+
 
 @dataclass
 class Shots:
@@ -18,7 +20,8 @@ class Shots:
     trigger_phase: np.ndarray   # ticks from the edge to the first sample
     n_average: np.ndarray
     config: dict = field(default_factory=dict)
-    device_dropped: int = 0     # shots the device dropped (its counter, during this run)
+    triggers_skipped: int = 0   # laser shots the board skipped, every waveform slot waiting
+    # for the link (its counter, this run): by design at a rate above the link's, not a loss
     adc_overruns: int = 0       # bursts the ADC/DMA overran (device counter, this run)
     integrity_faults: int = 0   # bursts dropped: DMA position disagreed with the timer
     link_rejected: int = 0      # frames the host decoder rejected during this run
@@ -27,6 +30,11 @@ class Shots:
     armed_s: float | None = None
     first_byte_s: float | None = None
     done_s: float | None = None
+
+    @property
+    def faults(self) -> int:
+        """Bursts the device captured wrongly and never sent (overruns, integrity faults)."""
+        return self.adc_overruns + self.integrity_faults
 
     @property
     def lost(self) -> np.ndarray:

@@ -22,6 +22,7 @@ from dmdsm.marlin_patch import MachineLimits
 
 from ..links.interfaces import Stage, StreamSensor
 from ..links.sensor import CLOCK_SPACING_S, fit_clock
+from ..links.shots import LOSS_COUNTERS
 from ..links.transport import LinkError
 from ..ranging.point import PointRanger, surface
 from .common import Progress, ScanStats, approach
@@ -235,7 +236,7 @@ class FlyRun:
         if not waves:
             raise LineRejected("no waveform arrived while the line ran")
         ids = np.array([w.shot_id for w in waves])
-        if np.any(ids != np.arange(len(ids))) or any(change.values()):
+        if np.any(ids != np.arange(len(ids))) or any(change[k] for k in LOSS_COUNTERS):
             raise LineRejected(f"waveforms were lost (shot ids {ids[0]}..{ids[-1]} for "
                                f"{len(ids)} received; device counters {change})")
         ts = np.array([w.timestamp for w in waves], dtype=np.int64)

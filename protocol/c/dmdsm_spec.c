@@ -322,7 +322,7 @@ size_t dmdsm_pack_status(const struct dmdsm_status *m, uint8_t *out)
     put_le(out + 6, (uint64_t)(uint32_t)m->shots_remaining, 4);
     put_le(out + 10, (uint64_t)(uint32_t)m->triggers, 4);
     put_le(out + 14, (uint64_t)(uint32_t)m->shots_sent, 4);
-    put_le(out + 18, (uint64_t)(uint32_t)m->shots_dropped, 4);
+    put_le(out + 18, (uint64_t)(uint32_t)m->triggers_skipped, 4);
     put_le(out + 22, (uint64_t)(uint32_t)m->adc_overruns, 4);
     put_le(out + 26, (uint64_t)(uint32_t)m->no_trigger_timeouts, 4);
     put_le(out + 30, (uint64_t)(uint32_t)m->rx_frames, 4);
@@ -343,7 +343,7 @@ bool dmdsm_unpack_status(const uint8_t *p, size_t len, struct dmdsm_status *m)
     m->shots_remaining = (uint32_t)get_le(p + 6, 4);
     m->triggers = (uint32_t)get_le(p + 10, 4);
     m->shots_sent = (uint32_t)get_le(p + 14, 4);
-    m->shots_dropped = (uint32_t)get_le(p + 18, 4);
+    m->triggers_skipped = (uint32_t)get_le(p + 18, 4);
     m->adc_overruns = (uint32_t)get_le(p + 22, 4);
     m->no_trigger_timeouts = (uint32_t)get_le(p + 26, 4);
     m->rx_frames = (uint32_t)get_le(p + 30, 4);
@@ -412,7 +412,7 @@ size_t dmdsm_pack_waveform(const struct dmdsm_waveform *m, uint8_t *out)
     put_le(out + 18, (uint64_t)(uint16_t)m->sample_rate_div, 2);
     put_le(out + 20, (uint64_t)(uint8_t)m->sample_format, 1);
     put_le(out + 21, (uint64_t)(uint8_t)m->modality, 1);
-    put_le(out + 22, (uint64_t)(uint32_t)m->shots_dropped, 4);
+    put_le(out + 22, (uint64_t)(uint32_t)m->triggers_skipped, 4);
     put_le(out + 26, (uint64_t)(uint32_t)m->adc_overruns, 4);
     put_le(out + 30, (uint64_t)(uint32_t)m->integrity_faults, 4);
     put_le(out + 34, (uint64_t)(uint32_t)m->sync_steps, 4);
@@ -433,7 +433,7 @@ bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *
     m->sample_rate_div = (uint16_t)get_le(p + 18, 2);
     m->sample_format = (uint8_t)get_le(p + 20, 1);
     m->modality = (uint8_t)get_le(p + 21, 1);
-    m->shots_dropped = (uint32_t)get_le(p + 22, 4);
+    m->triggers_skipped = (uint32_t)get_le(p + 22, 4);
     m->adc_overruns = (uint32_t)get_le(p + 26, 4);
     m->integrity_faults = (uint32_t)get_le(p + 30, 4);
     m->sync_steps = (uint32_t)get_le(p + 34, 4);
@@ -562,7 +562,7 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "shots_remaining=%llu ", (unsigned long long)get_le(payload + 6, 4));
         put(&w, "triggers=%llu ", (unsigned long long)get_le(payload + 10, 4));
         put(&w, "shots_sent=%llu ", (unsigned long long)get_le(payload + 14, 4));
-        put(&w, "shots_dropped=%llu ", (unsigned long long)get_le(payload + 18, 4));
+        put(&w, "triggers_skipped=%llu ", (unsigned long long)get_le(payload + 18, 4));
         put(&w, "adc_overruns=%llu ", (unsigned long long)get_le(payload + 22, 4));
         put(&w, "no_trigger_timeouts=%llu ", (unsigned long long)get_le(payload + 26, 4));
         put(&w, "rx_frames=%llu ", (unsigned long long)get_le(payload + 30, 4));
@@ -596,7 +596,7 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "sample_rate_div=%llu ", (unsigned long long)get_le(payload + 18, 2));
         put(&w, "sample_format=%llu ", (unsigned long long)get_le(payload + 20, 1));
         put(&w, "modality=%llu ", (unsigned long long)get_le(payload + 21, 1));
-        put(&w, "shots_dropped=%llu ", (unsigned long long)get_le(payload + 22, 4));
+        put(&w, "triggers_skipped=%llu ", (unsigned long long)get_le(payload + 22, 4));
         put(&w, "adc_overruns=%llu ", (unsigned long long)get_le(payload + 26, 4));
         put(&w, "integrity_faults=%llu ", (unsigned long long)get_le(payload + 30, 4));
         put(&w, "sync_steps=%llu ", (unsigned long long)get_le(payload + 34, 4));

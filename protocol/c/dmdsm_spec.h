@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 #define DMDSM_PROTOCOL_VERSION 1u
-#define DMDSM_SPEC_HASH UINT64_C(0x74431f214c0bdf1c)
+#define DMDSM_SPEC_HASH UINT64_C(0x2889145dfb22f671)
 #define DMDSM_MAX_PAYLOAD 16448u
 #define DMDSM_MAX_COMMAND_PAYLOAD 64u
 #define DMDSM_SYNC_QUIET_MS 20u
@@ -32,7 +32,7 @@ enum dmdsm_error {
     DMDSM_ERROR_BAD_VERSION = 5, /* the frame's protocol version is not this firmware's */
     DMDSM_ERROR_NOT_ARMED = 6, /* the command needs an armed acquisition */
     DMDSM_ERROR_NO_TRIGGER = 7, /* no photodiode edge within trigger_timeout_ms */
-    DMDSM_ERROR_TX_OVERFLOW = 8, /* a shot was dropped because the link was busy */
+    DMDSM_ERROR_TX_OVERFLOW = 8, /* not raised since firmware 0.2 (a trigger with no free waveform slot is skipped, not dropped); kept so that the codes keep their values */
     DMDSM_ERROR_ADC_OVERRUN = 9, /* the ADC or its DMA overran during a burst */
     DMDSM_ERROR_INTERNAL = 10, /* firmware fault; the message text says where */
     DMDSM_ERROR_SAMPLE_INTEGRITY = 11, /* a burst was dropped: the DMA's write position disagreed with the timer (a missed or late ADC trigger) */
@@ -219,7 +219,7 @@ struct dmdsm_status {
     uint32_t shots_remaining; /* waveforms still to send in this arm; 0 if continuous or idle */
     uint32_t triggers; /* photodiode edges seen while armed */
     uint32_t shots_sent; /* waveform frames queued to the link */
-    uint32_t shots_dropped; /* waveforms dropped because the link was busy */
+    uint32_t triggers_skipped; /* laser shots not captured because every waveform slot was waiting for the link (the link is slower than the laser at these settings): by design, not a loss; an arm still sends its n_shots waveforms */
     uint32_t adc_overruns; /* ADC/DMA overruns */
     uint32_t no_trigger_timeouts; /* arms that ended in a no-trigger timeout */
     uint32_t rx_frames; /* command frames accepted */
@@ -261,7 +261,7 @@ bool dmdsm_unpack_nak(const uint8_t *p, size_t len, struct dmdsm_nak *m);
 /* waveform: one averaged shot; seq counts waveform frames so the host sees gaps (device -> host) */
 #define DMDSM_WAVEFORM_FIXED_SIZE 38u
 struct dmdsm_waveform {
-    uint32_t shot_id; /* counts waveforms since arm, from 0; gaps = dropped shots */
+    uint32_t shot_id; /* counts waveforms since arm, from 0, one per waveform sent (skipped triggers take no id): a gap is a frame lost on the link */
     uint64_t timestamp; /* device clock at the first averaged shot's edge [ticks] */
     uint16_t trigger_phase; /* edge to first sample, for sub-sample start jitter removal [ticks] */
     uint16_t n_average; /* shots in this average */
@@ -269,7 +269,7 @@ struct dmdsm_waveform {
     uint16_t sample_rate_div; /* sample rate = adc_rate_hz / sample_rate_div */
     uint8_t sample_format; /* element type of samples */
     uint8_t modality; /* sensing path */
-    uint32_t shots_dropped; /* device's cumulative dropped-waveform counter */
+    uint32_t triggers_skipped; /* device's cumulative skipped-trigger counter (status.triggers_skipped) */
     uint32_t adc_overruns; /* device's cumulative ADC overrun counter */
     uint32_t integrity_faults; /* device's cumulative sample-integrity fault counter (bursts dropped: DMA position disagreed with the timer) */
     uint32_t sync_steps; /* sum over the averaged shots of the motion-sync edges counted in the open burst before each shot's edge: / n_average, the mean X steps made since the burst began (0 with no burst open) [steps] */

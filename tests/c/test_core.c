@@ -329,7 +329,7 @@ static void test_u32_sums_do_not_overflow(void)
     CHECK(s1 == 4096u * 65535u && w.samples_len == 64);
 }
 
-static void test_busy_link_drops_whole_shots(void)
+static void test_busy_link_skips_triggers_and_never_drops_a_waveform(void)
 {
     reset();
     struct dmdsm_set_config c = good;
@@ -341,7 +341,7 @@ static void test_busy_link_drops_whole_shots(void)
     dmdsm_core_log(&core, 1, 0, "x"); /* occupies the link */
     for (int i = 0; i < 10; i++)
         shot(1000, 0);
-    CHECK(core.count.shots_dropped == 8); /* two slots filled, eight dropped */
+    CHECK(core.count.triggers_skipped == 8); /* two slots filled, eight triggers skipped */
     B.busy = false;
     drain();
     CHECK(n_msgs == 3); /* log + two whole waveforms */
@@ -350,9 +350,46 @@ static void test_busy_link_drops_whole_shots(void)
     shot(1000, 0);
     drain();
     CHECK(n_msgs == 1 && dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
-    CHECK(w.shot_id == 10 && w.shots_dropped == 8); /* the gap and the counter agree */
+    CHECK(w.shot_id == 2 && w.triggers_skipped == 8); /* no gap: ids count waveforms sent */
     struct dmdsm_status s = status(3);
-    CHECK(s.shots_dropped == 8 && s.shots_sent == 3 && s.triggers == 11);
+    CHECK(s.triggers_skipped == 8 && s.shots_sent == 3 && s.triggers == 11);
+    CHECK(s.last_error == DMDSM_ERROR_NONE); /* a skip is not an error */
+}
+
+static void test_an_arm_for_n_sends_n_waveforms_over_a_slow_link(void)
+{
+    reset();
+    struct dmdsm_set_config c = good;
+    c.n_samples = 256;
+    c.n_average = 3;
+    set_config(1, &c);
+    arm(2, 5);
+    drain();
+    uint32_t sent = 0, next_id = 0;
+    for (int i = 0; i < 200 && core.state != DMDSM_STATE_IDLE; i++) {
+        B.busy = (i % 7) != 0; /* the link frees a slot now and then */
+        shot(1000, 0);
+        if (!B.busy) {
+            drain();
+            for (size_t k = 0; k < n_msgs; k++) {
+                struct dmdsm_waveform w;
+                if (msgs[k].type == DMDSM_MSG_WAVEFORM &&
+                    dmdsm_unpack_waveform(msgs[k].payload, msgs[k].len, &w)) {
+                    CHECK(w.shot_id == next_id++ && w.n_average == 3);
+                    sent++;
+                }
+            }
+        }
+    }
+    B.busy = false;
+    drain();
+    for (size_t k = 0; k < n_msgs; k++)
+        if (msgs[k].type == DMDSM_MSG_WAVEFORM)
+            sent++;
+    CHECK(sent == 5 && core.state == DMDSM_STATE_IDLE);
+    struct dmdsm_status s = status(3);
+    CHECK(s.shots_sent == 5 && s.triggers_skipped > 0);
+    CHECK(s.triggers == 5u * 3u + s.triggers_skipped); /* every trigger averaged or skipped */
 }
 
 static void test_disarm_discards_partial_average(void)
@@ -598,7 +635,8 @@ int main(void)
     test_a_new_client_never_gets_an_old_answer();
     test_averaging_and_shot_ids();
     test_u32_sums_do_not_overflow();
-    test_busy_link_drops_whole_shots();
+    test_busy_link_skips_triggers_and_never_drops_a_waveform();
+    test_an_arm_for_n_sends_n_waveforms_over_a_slow_link();
     test_disarm_discards_partial_average();
     test_trigger_timeout();
     test_timestamps_survive_wrap();

@@ -134,12 +134,22 @@ def test_unknown_and_wrong_version_frames_are_naked(dut):
     assert naks and naks[0].error == SPEC.enums["error"]["bad_version"]
 
 
-def test_every_lost_shot_is_reported(dut):
-    configure(dut, n_average=1, n_samples=4096)  # 1 kHz shots outrun the link: drops
+@pytest.mark.parametrize("n, samples, average", [(40, 4096, 1), (9, 1024, 3), (25, 128, 1)])
+def test_an_arm_for_n_sends_n_waveforms_without_gaps(dut, n, samples, average):
+    """At 1 kHz the laser outruns the link at these settings: the board skips the triggers it
+    has no slot for and still sends exactly n waveforms, ids 0..n-1 (issue 37)."""
+    configure(dut, n_average=average, n_samples=samples)
     before = dut.request("get_status")
-    dut.request("arm", n_shots=40)
-    waves = dut.waveforms(40, timeout=3.0)
-    ids = [w.shot_id for w in waves]
-    assert ids == sorted(ids) and ids[-1] <= 39
-    gaps = (ids[-1] + 1) - len(ids)
-    assert waves[-1].shots_dropped - before.shots_dropped == gaps
+    dut.request("arm", n_shots=n)
+    waves = dut.waveforms(n + 1, timeout=3.0)  # one more than asked: none may come
+    assert [w.shot_id for w in waves] == list(range(n))
+    assert all(w.n_average == average and len(w.samples) == samples for w in waves)
+    after = dut.request("get_status")
+    assert after.shots_sent - before.shots_sent == n and after.shots_remaining == 0
+    skipped = after.triggers_skipped - before.triggers_skipped
+    assert waves[-1].triggers_skipped - before.triggers_skipped == skipped
+    faults = (after.adc_overruns - before.adc_overruns
+              + after.integrity_faults - before.integrity_faults)
+    assert after.triggers - before.triggers == n * average + skipped + faults
+
+

@@ -23,9 +23,9 @@ def test_10000_shots_through_a_noisy_link_every_shot_accounted(emulator):
     for i in got:  # zero corrupted shots accepted: every delivered one is what the board sent
         np.testing.assert_array_equal(shots.samples[i], sent[i].samples)
         assert shots.timestamp[i] == sent[i].timestamp
-    # every lost shot has a cause: dropped on the device, or its frame rejected on the wire
-    assert shots.device_dropped <= len(shots.lost)
-    assert len(shots.lost) - shots.device_dropped <= shots.link_rejected
+    # every lost shot has a cause: its frame rejected on the wire (a board never drops one:
+    # it skips the triggers it has no slot for, which take no shot id)
+    assert len(shots.lost) <= shots.link_rejected
     sc.close()
 
 

@@ -96,7 +96,7 @@ def test_a_lost_adc_trigger_drops_that_burst_and_is_counted():
     burst after it is dropped (not averaged, not sent), counted in status and in every later
     waveform, and pacing is re-synchronised so the bursts after that are good again."""
     host = start()
-    # 256 samples, 4 shots per waveform: the link carries every waveform (none dropped)
+    # 256 samples, 4 shots per waveform: the link carries every waveform (none skipped)
     host.request("set_config", **{**CFG, "n_samples": 256, "n_average": 4})
     before = host.request("get_status")
     host.request("arm", n_shots=0)
@@ -108,7 +108,7 @@ def test_a_lost_adc_trigger_drops_that_burst_and_is_counted():
     assert host.sim.sensor.mcu.adc.ignored == 1
     assert after.integrity_faults - before.integrity_faults == 1
     assert after.last_error == SPEC.enums["error"]["sample_integrity"]
-    assert after.shots_dropped == before.shots_dropped and after.adc_overruns == 0
+    assert after.triggers_skipped == before.triggers_skipped and after.adc_overruns == 0
     assert waves[-1].integrity_faults - before.integrity_faults == 1
     edges = after.triggers - before.triggers
     sent = after.shots_sent - before.shots_sent

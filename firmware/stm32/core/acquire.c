@@ -98,24 +98,19 @@ void dmdsm_core_stop(struct dmdsm_core *c)
     c->state = c->wave_count ? DMDSM_STATE_SENDING : DMDSM_STATE_IDLE;
 }
 
-/* encode the finished average into a free waveform slot, or drop it */
+/* encode the finished average into the free waveform slot capture_done kept for it */
 static void emit_waveform(struct dmdsm_core *c)
 {
     const struct dmdsm_set_config *cfg = &c->cfg;
     uint32_t n_avg = c->n_in_avg;
     uint32_t id = c->shot_id++;
-    if (c->wave_count == DMDSM_CORE_WAVE_SLOTS) {
-        c->count.shots_dropped++;
-        c->last_error = DMDSM_ERROR_TX_OVERFLOW;
-        return;
-    }
     unsigned slot = (c->wave_head + c->wave_count) % DMDSM_CORE_WAVE_SLOTS;
     struct dmdsm_waveform m = {
         .shot_id = id, .timestamp = c->avg_first_edge,
         .trigger_phase = (uint16_t)((c->avg_phase_sum + n_avg / 2u) / n_avg),
         .n_average = (uint16_t)n_avg, .pretrigger = cfg->pretrigger,
         .sample_rate_div = cfg->sample_rate_div, .sample_format = cfg->sample_format,
-        .modality = cfg->modality, .shots_dropped = c->count.shots_dropped,
+        .modality = cfg->modality, .triggers_skipped = c->count.triggers_skipped,
         .adc_overruns = c->count.adc_overruns, .integrity_faults = c->count.integrity_faults,
         .sync_steps = c->avg_sync_steps,
         .samples = NULL, .samples_len = 0};
@@ -161,6 +156,12 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
     } else if (result != DMDSM_CAPTURE_OK) { /* never averaged: its samples may be stale */
         c->count.integrity_faults++;
         c->last_error = DMDSM_ERROR_SAMPLE_INTEGRITY;
+    } else if (c->n_in_avg == 0 && c->wave_count == DMDSM_CORE_WAVE_SLOTS) {
+        /* every slot still waits for the link: skip this shot rather than start an average
+         * that could not be sent. Only this core fills the slots, so an average begun with
+         * one free always has it when it ends: no waveform is ever dropped, and shot ids
+         * count waveforms sent. */
+        c->count.triggers_skipped++;
     } else {
         if (c->n_in_avg == 0)
             c->avg_first_edge = edge;

@@ -102,7 +102,7 @@ static void cmd_status(struct dmdsm_core *c, const struct dmdsm_frame *f)
         .shots_remaining = c->continuous ? 0 : c->shots_remaining,
         .triggers = c->count.triggers,
         .shots_sent = c->count.shots_sent,
-        .shots_dropped = c->count.shots_dropped,
+        .triggers_skipped = c->count.triggers_skipped,
         .adc_overruns = c->count.adc_overruns,
         .no_trigger_timeouts = c->count.no_trigger_timeouts,
         .rx_frames = c->count.rx_frames,

@@ -10,7 +10,7 @@
 #include "dmdsm_frame.h" /* struct dmdsm_decoder, DMDSM_WIRE_SIZE */
 
 #define DMDSM_FW_MAJOR 0
-#define DMDSM_FW_MINOR 1
+#define DMDSM_FW_MINOR 2
 #define DMDSM_FW_PATCH 0
 
 #ifndef DMDSM_CORE_MAX_SAMPLES
@@ -29,7 +29,7 @@
 struct dmdsm_counters {
     uint32_t triggers;
     uint32_t shots_sent;
-    uint32_t shots_dropped;
+    uint32_t triggers_skipped; /* shots not captured: no free waveform slot (by design) */
     uint32_t adc_overruns;
     uint32_t integrity_faults; /* bursts whose DMA position disagreed with the timer */
     uint32_t no_trigger_timeouts;

@@ -110,7 +110,10 @@ class PtyServer:
         while not self._stop.is_set():
             self._watch_scene()
             fds = [p.master for p in self.ports.values() if p.master >= 0]
-            readable, _, _ = select.select(fds, [], [], 0.001)
+            try:
+                readable, _, _ = select.select(fds, [], [], 0.001)
+            except (OSError, ValueError):  # a port closed (a pulled cable) since fds was read
+                continue
             with self.lock:
                 for p in self.ports.values():
                     if p.master in readable:

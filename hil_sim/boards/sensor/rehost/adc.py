@@ -8,8 +8,11 @@ failure the firmware's DMA-position check must catch. Each result goes to the DM
 whose DMAMUX request is ADC1 (9). `miss_trigger_after(t)` injects one ignored trigger.
 The sample values come from `machine.analog(k, t, grid)` (k: update index since TIM8 start).
 Rules: the regulator is enabled out of deep power-down only; calibration runs with the
-regulator settled and ADEN = 0; ADEN only after a calibration; ADSTART only when ready;
-ADSTP only while a conversion sequence runs (ADSTART = 1).
+regulator settled, ADEN = 0 and the kernel clock (PLL2 P) running; ADEN only after a
+completed calibration and never while one runs; ADSTART only when ready; ADSTP only while a
+conversion sequence runs (ADSTART = 1); the configuration registers (CFGR, CFGR2, SMPR1/2,
+PCSEL, SQR1..4) are written only with ADSTART = 0 (RM0433 25.4.x: "software is allowed to
+write these bits only when ADSTART = 0").
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from .bus import Machine, Peripheral, field
 VREG_START_S, CAL_S, ADRDY_S = 10e-6, 200e-6, 2e-6
 DMAMUX_REQ_ADC1 = 9
 RS_BITS = (1 << 31) | 0x3F  # ADC_CR bits the software can only set (RM0433 25.6.3)
+CONFIG_REGS = {0x0C: "ADC_CFGR", 0x10: "ADC_CFGR2", 0x14: "ADC_SMPR1", 0x18: "ADC_SMPR2",
+               0x1C: "ADC_PCSEL", 0x30: "ADC_SQR1", 0x34: "ADC_SQR2", 0x38: "ADC_SQR3",
+               0x3C: "ADC_SQR4"}
 MAX_BATCH = 1 << 16  # conversions materialised per catch-up (more than any DMA ring)
 SAMPLING_CYCLES = (1.5, 2.5, 8.5, 16.5, 32.5, 64.5, 387.5, 810.5)
 
@@ -90,9 +96,10 @@ class Adc(Peripheral):
         if offset == 0x08:
             self._cr(self.regs.get(0x08, 0), value)
             return
-        if offset == 0x0C and self.regs.get(0x08, 0) & 4:
+        if offset in CONFIG_REGS and self.regs.get(0x08, 0) & 4:
             self.m.violation("adc-config-while-converting",
-                                f"ADC_CFGR written at pc 0x{self.m.pc():08x} with ADSTART = 1")
+                                f"{CONFIG_REGS[offset]} = 0x{value:08x} written at pc "
+                                f"0x{self.m.pc():08x} with ADSTART = 1")
         self.regs[offset] = value
 
     def _cr(self, old: int, new: int) -> None:
@@ -113,6 +120,11 @@ class Adc(Peripheral):
                                     f"ADVREGEN set with DEEPPWD = 1 (pc 0x{pc:08x})")
             self.vreg_at = t + VREG_START_S
         if new >> 31 and not old >> 31:
+            if not self.m.rcc.adc_clock_running():
+                self.m.violation("adc-without-kernel-clock",
+                                 f"ADCAL at pc 0x{pc:08x} with the ADC kernel clock (PLL2 P: "
+                                 f"PLL2 locked, DIVM2 > 0, DIVP2EN) stopped: it never ends")
+            self.calibrated = False  # a new calibration replaces the last one
             if old & 1:
                 self.m.violation("adc-calibration-while-enabled",
                                     f"ADCAL with ADEN = 1 (pc 0x{pc:08x})")
@@ -122,7 +134,11 @@ class Adc(Peripheral):
                                     f"regulator settles (T_ADCVREG_STUP, pc 0x{pc:08x})")
             self.cal_end = math.inf if "adc" in self.m.faults else t + CAL_S
         if new & 1 and not old & 1:
-            if not self.calibrated:
+            if old >> 31:
+                self.m.violation("adc-enable-during-calibration",
+                                 f"ADEN at pc 0x{pc:08x} while ADCAL = 1 (RM0433 25.4.8: wait "
+                                 f"for ADCAL to clear)")
+            elif not self.calibrated:
                 self.m.violation("adc-enable-before-calibration",
                                     f"ADEN at pc 0x{pc:08x} before a completed ADCAL")
             self.rdy_at = t + ADRDY_S
@@ -155,12 +171,15 @@ class Adc(Peripheral):
     def conversion_s(self) -> float:
         """Duration of one 16-bit conversion (s) at the channel's sampling time."""
         smp = SAMPLING_CYCLES[field(self.regs.get(0x14, 0), 9, 3)]  # channel 3
-        return (smp + 8.5) / self.m.rcc.adc_hz()
+        hz = self.m.rcc.adc_hz()
+        return (smp + 8.5) / hz if hz > 0 else math.inf
 
     def advance(self) -> None:
         """Convert every trigger up to now and hand the results to the DMA."""
         m = self.m
         if m.t == self._t_done or self.t_start is None or not m.tim8.regs.get(0, 0) & 1:
+            return
+        if not m.rcc.adc_clock_running():  # no kernel clock: nothing converts
             return
         self._t_done = m.t
         period = m.tim8.period_s()

@@ -85,6 +85,7 @@ class Peripheral:
             self.m.violation("peripheral-clock-off",
                                 f"{what} of {self.name}+0x{offset:03x} at pc 0x{self.m.pc():08x} "
                                 f"before its clock is enabled in RCC+0x{reg:03x} bit {bit}")
+        self.m.rcc.check_enabled(reg, bit, f"{self.name}+0x{offset:03x} ({what})")
 
     def read(self, offset: int) -> int:
         """Value of the 32-bit register at offset."""

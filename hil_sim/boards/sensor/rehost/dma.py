@@ -71,23 +71,50 @@ class Dma(Peripheral):
         n, reg = self._stream(offset)
         if n >= 8:
             self.m.violation("bus-fault", f"DMA1+0x{offset:03x} is reserved")
-        if reg != 0 and self.enabled(n):
-            self.m.violation("dma-config-while-enabled",
-                                f"DMA1 stream {n} register +0x{reg:02x} written at pc "
-                                f"0x{self.m.pc():08x} while EN = 1 (RM0433 15.3.19)")
         was = self.enabled(n)
+        if was:
+            self._check_while_enabled(n, reg, value)
         self.regs[offset] = value
+        if was and reg in (0x0C, 0x10):  # the idle buffer of a double-buffered stream
+            self._check_buffer(n, reg)
         if reg == 0:
             if value & 1 and not was:
                 self._start(n)
             elif not value & 1 and was:
                 self._stop(n)
 
+    def _check_while_enabled(self, n: int, reg: int, value: int) -> None:
+        """RM0433 15.3.19: with EN = 1 only EN may change in CR (a write clearing EN stops the
+        stream, whatever else it holds), and only the buffer not in
+        use (M1AR while CT = 0, M0AR while CT = 1) may be rewritten, in double-buffer mode."""
+        cr = self.sreg(n, 0)
+        dbm, ct = (cr >> 18) & 1, (cr >> 19) & 1
+        if reg == 0:
+            changed = (cr ^ value) & ~1
+            if not changed or not value & 1:  # EN = 0 disables: the usual way to stop it
+                return
+            what = f"CR bits 0x{changed:08x}"
+        elif reg in (0x0C, 0x10) and dbm and ct == (1 if reg == 0x0C else 0):
+            return  # the idle buffer: legal
+        else:
+            what = f"register +0x{reg:02x}"
+        self.m.violation("dma-config-while-enabled",
+                         f"DMA1 stream {n} {what} written at pc 0x{self.m.pc():08x} while "
+                         f"EN = 1 (RM0433 15.3.19)")
+
+    def _check_buffer(self, n: int, reg: int) -> None:
+        cr, ndtr = self.sreg(n, 0), self.sreg(n, 4)
+        name = "M0AR" if reg == 0x0C else "M1AR"
+        self.m.check_dma_address(self.sreg(n, reg), ndtr * (1 << ((cr >> 13) & 3)),
+                                 f"DMA1 stream {n} {name}")
+
     def _start(self, n: int) -> None:
         cr, ndtr = self.sreg(n, 0), self.sreg(n, 4)
         m0ar = self.sreg(n, 0xC)
         width = 1 << ((cr >> 13) & 3)
         self.m.check_dma_address(m0ar, ndtr * width, f"DMA1 stream {n} M0AR")
+        if (cr >> 18) & 1:  # double buffer: memory 1 must be reachable too
+            self._check_buffer(n, 0x10)
         self.reload[n], self.done[n] = ndtr, 0
         req = self.m.dmamux.request(n)
         if (cr >> 6) & 3 == 0:

@@ -192,7 +192,10 @@ class H743:
             self._fail(e)
 
     def violation(self, rule: str, detail: str) -> None:
-        """A rule was broken: raise RuleViolation, or note it if the rule is waived."""
+        """A rule was broken: raise RuleViolation, or note it if the rule is waived; the
+        message always says where (the pc), added here when the model's text lacks it."""
+        if "pc 0x" not in detail:
+            detail = f"{detail} (pc 0x{self.pc():08x})"
         if rule in self.waive:
             self.waived.append(f"{rule}: {detail}")
             return

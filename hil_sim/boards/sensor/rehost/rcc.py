@@ -20,8 +20,18 @@ if TYPE_CHECKING:
 HSI_HZ = 64_000_000
 HSE_HZ = 8_000_000  # ST-LINK MCO, bypass mode
 HSE_READY_S, PLL_LOCK_S, VOS_SETTLE_S = 10e-6, 100e-6, 50e-6
-# highest CPU clock per voltage scale (RM0433 rev 8 Table 8, rev V / rev Y)
+# highest CPU clock per voltage scale (RM0433 rev 8 Table 8 / DS12110): rev V reaches 480 MHz
+# in VOS0; rev Y is a 400 MHz part, overdrive or not
 VOS_LIMIT_HZ = {0: 480e6, 1: 400e6, 2: 300e6, 3: 200e6}
+VOS_LIMIT_REV_Y_HZ = {0: 400e6, 1: 400e6, 2: 300e6, 3: 200e6}
+# which bits of each PLL register belong to PLL1 / PLL2 (RCC_CR ON bit, field mask): a PLL's
+# fields may change only while that PLL is off; PLLSRC only while both are
+PLL_FIELDS = {0x028: ((24, 0x3 | 0x3F << 4), (26, 0x3 | 0x3F << 12)),
+              0x02C: ((24, 0xF | 0x7 << 16), (26, 0xF << 4 | 0x7 << 19)),
+              0x030: ((24, 0xFFFFFFFF), (26, 0)), 0x034: ((24, 0xFFFFFFFF), (26, 0)),
+              0x038: ((24, 0), (26, 0xFFFFFFFF)), 0x03C: ((24, 0), (26, 0xFFFFFFFF))}
+CR_READY_BITS = {0: 2, 16: 17, 24: 25, 26: 27}  # RCC_CR oscillator/PLL ON bit -> its RDY bit
+CR_READ_ONLY = (1 << 2) | (1 << 17) | (1 << 25) | (1 << 27) | (1 << 29)  # RDY flags: hardware
 ENABLE_REGS = (0xD4, 0xD8, 0xDC, 0xE0, 0xE4, 0xE8, 0xEC, 0xF0, 0xF4)
 
 
@@ -47,9 +57,9 @@ class Rcc(Peripheral):
     name, base = "RCC", 0x58024400
 
     def reset(self) -> None:
-        self.regs.update({0x000: 0x5, 0x010: 0, 0x018: 0, 0x01C: 0, 0x020: 0, 0x028: 0x02020200,
+        self.regs.update({0x000: 0x1, 0x010: 0, 0x018: 0, 0x01C: 0, 0x020: 0, 0x028: 0x02020200,
                           0x02C: 0x01FF0000, 0x030: 0x01010280, 0x038: 0x01010280})
-        self.ready_at: dict[int, float] = {}  # CR ready bit -> time it rises
+        self.ready_at: dict[int, float] = {2: 0.0}  # CR ready bit -> time it rises (HSI on)
         self.unread: set[tuple[int, int]] = set()  # enables not yet read back
         self._cpu_hz: float | None = None
         self._timclk: dict[int, float] = {}
@@ -57,9 +67,10 @@ class Rcc(Peripheral):
     def read(self, offset: int) -> int:
         self.unread.clear()  # any RCC read completes the enable writes before it
         v = self.regs.get(offset, 0)
-        if offset == 0x000:
-            for bit, at in self.ready_at.items():
-                v = v | (1 << bit) if self.m.t >= at else v & ~(1 << bit)
+        if offset == 0x000:  # a RDY flag is set while its source runs and has settled
+            for bit in CR_READY_BITS.values():
+                at = self.ready_at.get(bit)
+                v = v | (1 << bit) if at is not None and self.m.t >= at else v & ~(1 << bit)
         elif offset == 0x010:
             v = (v & ~0x38) | ((v & 7) << 3)  # SWS follows SW (checked on write)
         return v
@@ -70,16 +81,22 @@ class Rcc(Peripheral):
         self._cpu_hz = None
         self._timclk.clear()
         if offset == 0x000:
+            value &= ~CR_READ_ONLY  # a read-modify-write stores no ready flag back
             self._oscillators(old, value)
-        elif offset in (0x028, 0x02C, 0x030, 0x038):
-            pll_on = self.regs[0] & ((1 << 24) | (1 << 26))
-            changed = value != old
-            if changed and pll_on:
-                self.m.violation("pll-config-while-on",
-                                    f"RCC+0x{offset:03x} written at pc 0x{self.m.pc():08x} "
-                                    f"while a PLL is on (RM0433 8.7.11: configure it while off)")
+        elif offset in PLL_FIELDS:
+            changed = value ^ old
+            for pll, (on_bit, mask) in enumerate(PLL_FIELDS[offset], start=1):
+                if changed & mask and self.regs[0] >> on_bit & 1:
+                    self.m.violation("pll-config-while-on",
+                                     f"RCC+0x{offset:03x} = 0x{value:08x} written at pc "
+                                     f"0x{self.m.pc():08x} changes PLL{pll}'s fields while "
+                                     f"PLL{pll} is on (RM0433 8.7.11: configure it while off)")
         elif offset == 0x010:
+            self.regs[offset] = value
             self._switch(value & 7)
+        elif offset == 0x018:
+            self.regs[offset] = value
+            self.check_limits(f"RCC_D1CFGR = 0x{value:08x}")
         elif offset in ENABLE_REGS:
             for bit in range(32):
                 if (value >> bit) & 1 and not (old >> bit) & 1:
@@ -88,14 +105,14 @@ class Rcc(Peripheral):
 
     def _oscillators(self, old: int, value: int) -> None:
         t, f = self.m.t, self.m.faults
-        for on, rdy, delay, fault in ((16, 17, HSE_READY_S, "hse"), (24, 25, PLL_LOCK_S, "pll"),
-                                      (26, 27, PLL_LOCK_S, "pll")):
+        for on, rdy, delay, fault in ((0, 2, 0.0, ""), (16, 17, HSE_READY_S, "hse"),
+                                      (24, 25, PLL_LOCK_S, "pll"), (26, 27, PLL_LOCK_S, "pll")):
             if (value >> on) & 1 and not (old >> on) & 1:
                 if on >= 24 and not self.source_ready():
                     self.m.violation("pll-without-source",
                                         f"PLL enabled at pc 0x{self.m.pc():08x} before its "
                                         f"input oscillator is ready")
-                self.ready_at[rdy] = float("inf") if fault in f else t + delay
+                self.ready_at[rdy] = float("inf") if fault and fault in f else t + delay
             elif not (value >> on) & 1:
                 self.ready_at.pop(rdy, None)
 
@@ -111,22 +128,38 @@ class Rcc(Peripheral):
         if self.m.t < self.ready_at.get(25, float("inf")):
             self.m.violation("clock-switch-to-unready-pll",
                                 f"SW=PLL1 at pc 0x{self.m.pc():08x} before PLL1RDY")
-        pwr = self.m.pwr
-        if not pwr.vos_ready():
+        if not self.m.pwr.vos_ready():
             self.m.violation("clock-switch-before-vos-ready",
                                 f"SW=PLL1 at pc 0x{self.m.pc():08x} while PWR_D3CR.VOSRDY is 0")
-        cpu = self.pll_p(1) / _ahb_div(field(self.regs[0x018], 8, 4))
-        vos = pwr.vos()
-        if cpu > VOS_LIMIT_HZ[vos]:
+        self.check_limits("SW=PLL1")
+
+    def vos_limit_hz(self, vos: int) -> float:
+        """Highest CPU clock (Hz) of this part at voltage scale `vos`."""
+        return (VOS_LIMIT_HZ if self.m.rev_v else VOS_LIMIT_REV_Y_HZ)[vos]
+
+    def check_limits(self, what: str) -> None:
+        """The clock in force against the voltage scale and the flash wait states, after any
+        write that changes one of them (the switch, D1CPRE/HPRE, FLASH_ACR, VOS)."""
+        cpu = self.sysclk() / _ahb_div(field(self.regs[0x018], 8, 4))
+        vos = self.m.pwr.vos()
+        pc = self.m.pc()
+        if cpu > self.vos_limit_hz(vos):
+            rev = "rev V" if self.m.rev_v else "rev Y"
             self.m.violation("clock-above-voltage-scale",
-                                f"SW=PLL1 gives {cpu / 1e6:.0f} MHz but VOS{vos} allows "
-                                f"{VOS_LIMIT_HZ[vos] / 1e6:.0f} MHz (pc 0x{self.m.pc():08x})")
+                                f"{what} at pc 0x{pc:08x} gives {cpu / 1e6:.0f} MHz but VOS{vos} "
+                                f"on a {rev} part allows {self.vos_limit_hz(vos) / 1e6:.0f} MHz")
         hclk = cpu / _ahb_div(field(self.regs[0x018], 0, 4))
         ws = self.m.flash.regs.get(0, 0) & 0xF
         if ws < flash_wait_states(hclk):
             self.m.violation("flash-latency-too-low",
-                                f"SW=PLL1 gives AXI {hclk / 1e6:.0f} MHz with {ws} flash wait "
-                                f"states (needs {flash_wait_states(hclk)})")
+                                f"{what} at pc 0x{pc:08x} gives AXI {hclk / 1e6:.0f} MHz with "
+                                f"{ws} flash wait states (needs {flash_wait_states(hclk)})")
+
+    def adc_clock_running(self) -> bool:
+        """PLL2 P, the ADC's kernel clock: PLL2 on and locked, DIVM2 set and DIVP2EN."""
+        return (self.m.t >= self.ready_at.get(27, float("inf"))
+                and field(self.regs[0x028], 12, 6) != 0
+                and bool((self.regs[0x02C] >> 19) & 1))
 
     def check_enabled(self, reg: int, bit: int, who: str) -> None:
         """Raise if `who` is accessed right after its enable with no read-back between."""
@@ -210,16 +243,20 @@ class Pwr(Peripheral):
     def write(self, offset: int, value: int, size: int = 4) -> None:
         self.action()
         if offset == 0x18 and field(value, 14, 2) != field(self.regs[0x18], 14, 2):
-            if self.m.rcc.sysclk() > VOS_LIMIT_HZ[{3: 1, 2: 2, 1: 3, 0: 3}[field(value, 14, 2)]]:
+            if self.m.rcc.sysclk() > self.m.rcc.vos_limit_hz({3: 1, 2: 2, 1: 3, 0: 3}[
+                    field(value, 14, 2)]):
                 self.m.violation("voltage-scale-below-clock",
-                                    "VOS lowered below what the running clock needs")
+                                    f"PWR_D3CR = 0x{value:08x} at pc 0x{self.m.pc():08x} "
+                                    f"lowers VOS below what the running clock needs")
             self.settle_at = self.m.t + VOS_SETTLE_S
         self.regs[offset] = value
 
     def overdrive(self, on: bool) -> None:
         """SYSCFG_PWRCR.ODEN changed (RM0433 6.6.2: only from VOS1)."""
         if on and field(self.regs[0x18], 14, 2) != 3:
-            self.m.violation("overdrive-outside-vos1", "ODEN set while VOS is not VOS1")
+            self.m.violation("overdrive-outside-vos1",
+                             f"SYSCFG_PWRCR.ODEN set at pc 0x{self.m.pc():08x} while VOS is "
+                             f"not VOS1")
         if on != self.od and "vos" not in self.m.faults:
             self.od = on
             self.settle_at = self.m.t + VOS_SETTLE_S
@@ -237,7 +274,6 @@ class Syscfg(Peripheral):
         return v
 
     def write(self, offset: int, value: int, size: int = 4) -> None:
-        self.m.rcc.check_enabled(0xF4, 1, "SYSCFG")
         self.action()
         self.regs[offset] = value
         if offset == 0x2C:
@@ -245,12 +281,19 @@ class Syscfg(Peripheral):
 
 
 class Flash(Peripheral):
-    """Flash interface: ACR.LATENCY (checked at the clock switch); reads back what was written."""
+    """Flash interface: ACR.LATENCY (checked against the clock whenever either changes);
+    reads back what was written."""
 
     name, base = "FLASH", 0x52002000
 
     def reset(self) -> None:
         self.regs[0] = 0x37  # 7 wait states, WRHIGHFREQ 3 at reset
+
+    def write(self, offset: int, value: int, size: int = 4) -> None:
+        self.action()
+        self.regs[offset] = value
+        if offset == 0:
+            self.m.rcc.check_limits(f"FLASH_ACR = 0x{value:08x}")
 
 
 class Dbgmcu(Peripheral):

@@ -64,6 +64,7 @@ class System(Peripheral):
                           0xD90: 16 << 8, 0xD78: 0x09000003, 0xD7C: 0x8303C003})
         self.enabled: set[int] = set()
         self.pending: set[int] = set()
+        self.swept: set[tuple[int, int]] = set()  # (set, way) invalidated since reset
         self.active = 0
         self.saved: list[tuple[list[int], list[int], int]] = []
         self.watches: list[DmaWatch] = []
@@ -134,6 +135,7 @@ class System(Peripheral):
             self._invalidate_line(value)
         elif offset == 0xF60 or offset == 0xF74:  # DCISW, DCCISW
             self._invalidate_set((value >> 5) & (DCACHE_SETS - 1))
+            self.swept.add(((value >> 5) & (DCACHE_SETS - 1), value >> 30))
         elif 0xF00 <= offset < 0xF80 or offset in (0xD84,):
             pass  # I-cache, clean-only operations, CSSELR: no state the model needs
         elif offset in (0x010, 0x018):  # SysTick enable / any write of CVR clears it
@@ -152,6 +154,12 @@ class System(Peripheral):
 
     def _ccr(self, value: int) -> None:
         if (value >> 16) & 1 and not (self.regs.get(0xD14, 0) >> 16) & 1:
+            missing = DCACHE_SETS * DCACHE_WAYS - len(self.swept)
+            if missing:  # after reset the D-cache holds garbage marked valid (ARM DDI0489)
+                self.m.violation("dcache-enable-without-invalidate",
+                                 f"SCB_CCR.DC set at pc 0x{self.m.pc():08x} with {missing} of "
+                                 f"{DCACHE_SETS * DCACHE_WAYS} set/ways never invalidated "
+                                 f"(DCISW): invalidate all first, as SCB_EnableDCache does")
             for w in self.watches:
                 w.fill = [-1] * len(w.fill)  # enabled after an invalidate-all
 

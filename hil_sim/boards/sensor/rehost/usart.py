@@ -137,7 +137,9 @@ class Usart3(Peripheral):
             self.regs[0x1C] &= ~(value & 0x1F5F)
             return
         if offset == 0x0C and self.regs.get(0, 0) & 1:
-            self.m.violation("usart-brr-while-enabled", "BRR written with UE = 1")
+            self.m.violation("usart-brr-while-enabled",
+                             f"USART3_BRR = 0x{value:08x} written at pc 0x{self.m.pc():08x} "
+                             f"with UE = 1 (RM0433 53.5.7: disable the USART first)")
         if offset == 0x28:
             self.tx_out.append(value & 0xFF)
             return

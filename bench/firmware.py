@@ -122,7 +122,12 @@ def rehost_rate(n_samples: int, n_average: int, seconds: float) -> dict:
                 got.append(x)
         raise TimeoutError(m.name)
 
-    sim.advance(0.01)
+    for seq in range(100, 120):  # booted once it answers (bytes before USART3 is up are lost)
+        try:
+            cmd(Message("get_status", seq=seq), dt=0.005)
+            break
+        except TimeoutError:
+            continue
     cmd(Message("set_config", seq=1, n_samples=n_samples, sample_rate_div=1,
                 n_average=n_average, pretrigger=0, trigger_edge=0, modality=0,
                 sample_format=0, trigger_timeout_ms=0))

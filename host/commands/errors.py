@@ -25,6 +25,10 @@ def check_output(path: Path, keep_existing: bool = False) -> None:
     """Refuse an output file that cannot be written (a missing or unwritable folder, a
     folder as the file; an existing file if keep_existing), before anything is measured."""
     path = Path(path)
+    kind = _not_a_regular_file(path)
+    if kind:
+        raise CliError(f"{path} is {kind}, not a regular file: name a new file (or a regular "
+                       f"file, with --force where the command has it)")
     if keep_existing and path.exists() and not path.is_dir():
         raise CliError(f"{path} exists and holds earlier data: name another file, or pass "
                        f"--force to overwrite it")
@@ -36,6 +40,24 @@ def check_output(path: Path, keep_existing: bool = False) -> None:
                        f"or name another file")
     if not os.access(folder, os.W_OK):
         raise CliError(f"cannot write {path}: no permission to write in {folder}")
+
+
+def _not_a_regular_file(path: Path) -> str:
+    """What an existing output path is if writing it would replace something that is not a
+    plain file (a device node, a FIFO, a socket, a symbolic link); "" otherwise."""
+    import stat
+
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return ""  # a new path (or one we cannot see: the folder checks say so)
+    if stat.S_ISLNK(mode):
+        return f"a symbolic link (to {os.readlink(path)})"
+    for test, kind in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return ""
 
 
 def check_setting(flag: str, field: str, value: int | None) -> None:

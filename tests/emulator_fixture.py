@@ -7,16 +7,13 @@ from dmdsm.sim.servers.runner import SimConfig
 
 
 @pytest.fixture
-def emulator(tmp_path_factory):
+def emulator():
     """Factory: emulator(faults=..., speed=...) -> a started Emulator (.stage, .sensor port
-    names, .sim for ground truth); stopped after the test. The ports have stable names (as
-    `dmdsm sim` gives them): a port the emulator drops and reopens may come back as another
-    /dev/pts/N while other processes open terminals, and the client reopens it by name."""
+    names, .sim for ground truth); stopped after the test."""
     started = []
 
     def start(speed: float = 20.0, **kw) -> Emulator:
-        links = tmp_path_factory.mktemp("ports")
-        emu = Emulator(SimConfig(**kw), speed=speed, link_dir=str(links)).start()
+        emu = Emulator(SimConfig(**kw), speed=speed).start()
         started.append(emu)
         return emu
 

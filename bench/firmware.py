@@ -18,7 +18,7 @@ from pathlib import Path
 
 import serial
 
-from dmdsm.host.links.link_rate import waveform_wire_bytes
+from dmdsm.host.links.link_rate import BITS_PER_BYTE, LINK_BAUD, waveform_wire_bytes
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
 from dmdsm.sim.boards.sensor.qemu import QemuSensor
 
@@ -27,7 +27,6 @@ FW = REPO / "firmware/stm32"
 REGIONS = {"nucleo_h743zi": {"FLASH": (0x08000000, 0x08200000), "DTCM": (0x20000000, 0x20020000),
                              "AXI SRAM": (0x24000000, 0x24080000)},
            "qemu_an500": {"FLASH": (0x0, 0x400000), "RAM": (0x20000000, 0x20400000)}}
-UART_2M = 200_000  # bytes/s at 2 Mbaud, 8N1
 BURST_OVERHEAD_S = 50e-6  # edge ISR + copy-out + re-arm, a bound for a 480 MHz M7
 
 
@@ -54,15 +53,9 @@ def footprint(board: str) -> dict[str, int]:
     return used
 
 
-def wire_bytes(n_samples: int) -> int:
-    """Wire size of one u16 waveform frame of n_samples (worst-case COBS), as the host's
-    acquire summary and `dmdsm info` give it."""
-    return waveform_wire_bytes(n_samples)
-
-
 def nucleo_rate(n_samples: int, n_average: int, adc_hz: float = 240e6 / 72) -> float:
     """Shots/s the NUCLEO sustains at 2 Mbaud: link-limited or capture-limited."""
-    link = UART_2M / wire_bytes(n_samples) * n_average
+    link = LINK_BAUD / BITS_PER_BYTE / waveform_wire_bytes(n_samples) * n_average
     capture = 1.0 / (n_samples / adc_hz + BURST_OVERHEAD_S)
     return min(link, capture)
 
@@ -164,7 +157,7 @@ def main() -> int:
                 if r["violation"] is not None:
                     print(f"rehosted NUCLEO halted: {r['violation']}")
                     return 1
-                print(f"{n:>8} {avg:>6} {wire_bytes(n):>8} {nucleo_rate(n, avg):>15.1f} "
+                print(f"{n:>8} {avg:>6} {waveform_wire_bytes(n):>8} {nucleo_rate(n, avg):>15.1f} "
                       f"{rate:>14.1f} {skips:>10} {r['rate']:>8.1f} {r['skipped']:>6} "
                       f"{r['integrity']:>9} {r['overruns']:>8} {r['wall_per_sim']:>8.1f}")
     print("\nQEMU and the rehost: 1 kHz emulated laser, so 1000 shots/s is the ceiling there; "

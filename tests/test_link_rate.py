@@ -42,4 +42,4 @@ def test_rate_is_the_slower_of_link_and_laser(n, average):
 def test_the_defaults_of_a_fresh_board():
     r = link_rate(1024, 1)
     assert r.wire_bytes == 2106 and round(r.link_hz) == 95 and r.limit == "link"
-    assert r.free_average == 10 and "91% of laser shots are skipped (not a loss)" in r.text(1024, 1)
+    assert r.free_average == 10 and "91% of laser shots are skipped (not a loss)" in r.text()

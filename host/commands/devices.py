@@ -135,7 +135,7 @@ def cmd_info(args: argparse.Namespace) -> int:
          f"{i['fw_patch']}, protocol {i['protocol_version']}, spec {i['spec_hash']}\n"
          f"config: " + " ".join(f"{k}={v}" for k, v in info["config"].items()) + "\n"
          "status: " + " ".join(f"{k}={v}" for k, v in info["status"].items()) + "\n"
-         f"link: {rate.text(cfg['n_samples'], cfg['n_average'])}")
+         f"link: {rate.text()}")
     return 0
 
 
@@ -220,7 +220,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
             f"rejected {shots.link_rejected} frames, ADC overruns {shots.adc_overruns}, "
             f"integrity faults {shots.integrity_faults})")
     if shots.triggers_skipped:  # by design: the laser outpaces the link at these settings
-        summary["hint"] = rate.text(shots.config["n_samples"], shots.config["n_average"])
+        summary["hint"] = rate.text()
         text += (f"\nthe board skipped {shots.triggers_skipped} laser shots while the link was "
                  f"busy; {summary['hint']}")
     _out(args, summary, text)

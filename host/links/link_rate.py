@@ -31,6 +31,8 @@ def waveform_wire_bytes(n_samples: int, sample_format: int = 0) -> int:
 class LinkRate:
     """Waveforms per second a configuration sustains and what limits it."""
 
+    n_samples: int
+    n_average: int
     wire_bytes: int        # one waveform frame on the wire
     shot_hz: float         # the laser's repetition rate
     link_hz: float         # waveforms/s the UART carries
@@ -40,8 +42,9 @@ class LinkRate:
     skipped_share: float   # share of laser shots skipped at this rate (0..1)
     free_average: int      # shots per waveform that cost no extra time at this size
 
-    def text(self, n_samples: int, n_average: int) -> str:
+    def text(self) -> str:
         """One line for `dmdsm info` and the acquire summary."""
+        n_samples, n_average = self.n_samples, self.n_average
         s = (f"a waveform of {n_samples} samples is {self.wire_bytes} B on the wire: the link "
              f"carries {self.link_hz:.0f} waveforms/s, the {self.shot_hz:.0f} Hz laser at "
              f"--average {n_average} makes {self.laser_hz:.0f}/s")
@@ -62,4 +65,5 @@ def link_rate(n_samples: int, n_average: int, sample_format: int = 0,
     free = max(1, math.floor(laser_hz / link_hz)) if link_hz < laser_hz else 1
     limit = "link" if link_hz < made_hz else "laser"
     skipped = 1.0 - link_hz * n_average / laser_hz if limit == "link" else 0.0
-    return LinkRate(wire, laser_hz, link_hz, made_hz, rate, limit, skipped, free)
+    return LinkRate(n_samples, n_average, wire, laser_hz, link_hz, made_hz, rate, limit,
+                    skipped, free)

@@ -32,11 +32,6 @@ class Shots:
     done_s: float | None = None
 
     @property
-    def faults(self) -> int:
-        """Bursts the device captured wrongly and never sent (overruns, integrity faults)."""
-        return self.adc_overruns + self.integrity_faults
-
-    @property
     def lost(self) -> np.ndarray:
         """Shot ids that never arrived."""
         return np.nonzero(~self.received)[0]

@@ -106,19 +106,29 @@ __attribute__((unused)) static void cpu_240_of_480(void)
     R(RCC_CFGR) = 3u;
 }
 
-__attribute__((unused)) static void adc_ready(int calibrate)
+/* clocks on (PLL2 with this DIVM2), out of deep power-down, regulator settled */
+__attribute__((unused)) static void adc_regulator_on(uint32_t divm2)
 {
-    pll2_for_adc(4u);
+    pll2_for_adc(divm2);
     R(RCC_AHB1ENR) |= (1u << 5) | 1u; /* ADC12, DMA1 */
     (void)R(RCC_AHB1ENR);
     R(ADC1_CR) = 0;                   /* out of deep power-down */
     R(ADC1_CR) = 1u << 28;            /* ADVREGEN */
     spin(20000);                      /* > 10 us at 64 MHz */
-    if (calibrate) {
-        R(ADC1_CR) |= 1u << 31;
-        while (R(ADC1_CR) & (1u << 31)) {
-        }
+}
+
+__attribute__((unused)) static void adc_calibrate(void)
+{
+    R(ADC1_CR) |= 1u << 31;
+    while (R(ADC1_CR) & (1u << 31)) {
     }
+}
+
+__attribute__((unused)) static void adc_ready(int calibrate)
+{
+    adc_regulator_on(4u);
+    if (calibrate)
+        adc_calibrate();
     R(ADC1_CR) |= 1u; /* ADEN */
     while (!(R(ADC1_ISR) & 1u)) {
     }
@@ -243,12 +253,7 @@ void Reset_Handler(void)
     (void)R(ADC1_ISR);
     DONE();
 #elif CASE == 13 /* DIVM2 = 0 and the ADC calibrated anyway: ADCAL would never end */
-    pll2_for_adc(0u);
-    R(RCC_AHB1ENR) |= 1u << 5;
-    (void)R(RCC_AHB1ENR);
-    R(ADC1_CR) = 0;
-    R(ADC1_CR) = 1u << 28;
-    spin(20000);
+    adc_regulator_on(0u);
     R(ADC1_CR) |= 1u << 31;
 #elif CASE == 14 /* ADEN during a second calibration */
     adc_ready(1);
@@ -339,15 +344,8 @@ void Reset_Handler(void)
     (void)R(RCC_AHB1ENR);
     R(ADC1_CR) = (1u << 29) | (1u << 28);
 #elif CASE == 31 /* ADSTART right after ADEN, before ADRDY */
-    pll2_for_adc(4u);
-    R(RCC_AHB1ENR) |= 1u << 5;
-    (void)R(RCC_AHB1ENR);
-    R(ADC1_CR) = 0;
-    R(ADC1_CR) = 1u << 28;
-    spin(20000);
-    R(ADC1_CR) |= 1u << 31;
-    while (R(ADC1_CR) & (1u << 31)) {
-    }
+    adc_regulator_on(4u);
+    adc_calibrate();
     R(ADC1_CR) |= 1u;
     R(ADC1_CR) |= 1u << 2;
 #elif CASE == 32 /* ODEN from VOS3 (the reset scale), not VOS1 */

@@ -10,9 +10,14 @@ from __future__ import annotations
 # 16 MHz AVR since 2.1's #26881, 2024-07; it was 120). A move starts and ends at this rate.
 MINIMAL_STEP_RATE = 32.0
 
-# s: after M410 (quick stop) Marlin's planner drops new moves for this long (planner.cpp
-# cleaning_buffer_counter: 1000 ms)
+# s: after M410 (emergency parser) quickstop_stepper() flushes the planner and waits in idle()
+# until the clean-up counter runs out (planner.cpp cleaning_buffer_counter: 1000 ms): no
+# command runs meanwhile, then the ones queued behind run as usual (issue 29)
 QUICK_STOP_CLEAN_S = 1.0
+
+# s: after M112 kill() -> minkill() waits 1000 x 600 us with interrupts on (the steppers keep
+# stepping through the planned blocks), then cli(): nothing moves or answers until a reset
+MINKILL_S = 0.6
 
 
 def checksum(line: str) -> int:

@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dmdsm.marlin_patch import QUICK_STOP_CLEAN_S, MachineLimits, checksum, load_machine
+from dmdsm.marlin_patch import (
+    MINKILL_S,
+    QUICK_STOP_CLEAN_S,
+    MachineLimits,
+    checksum,
+    load_machine,
+)
 
 from .marlin_gcode import FIRMWARE_NAME, GcodeMixin
 from .motion import Planner
@@ -56,7 +62,14 @@ class MarlinEmulator(GcodeMixin):
         self.out: list[str] = []
         self.last_n = 0
         self.killed = False
-        self.cleaning_until = 0.0  # after a quick stop the planner drops new moves until then
+        self.killed_at = 0.0       # when M112 arrived: the steppers run on for MINKILL_S
+        self.frozen = False        # minkill's cli(): nothing moves or answers any more
+        # M410 (emergency parser): quickstop_stepper() flushes the planner, then waits in
+        # idle() for the 1 s clean-up; idle() still reads the serial port into free command
+        # slots but runs none. An M410 arriving meanwhile sets quickstop_flag: once the pause
+        # ends, the main loop runs one command, then the next idle() stops again.
+        self.paused_until: float | None = None
+        self.quickstop_flag = False
         self.relative = False
         self.feed_mm_s = 50.0
         self.current = np.zeros(n)  # logical position of the last queued move (mm, deg)
@@ -82,8 +95,16 @@ class MarlinEmulator(GcodeMixin):
 
     def position(self) -> np.ndarray:
         """Ground truth: where the stage is now (mm, deg), in raw machine coordinates."""
-        self.planner.update(self.now)
+        self._advance_motion(self.now)
         return self.planner.position()
+
+    def _advance_motion(self, t: float) -> None:
+        """Step the planner to t (s); after M112 the steppers stop for good MINKILL_S on."""
+        if self.killed and not self.frozen and t >= self.killed_at + MINKILL_S:
+            self.planner.quick_stop(self.killed_at + MINKILL_S)  # minkill: cli()
+            self.frozen = True
+        if not self.frozen:
+            self.planner.update(t)
 
     # ------------------------------------------------------------------ bytes in/out
     def position_at(self, t: float) -> np.ndarray:
@@ -121,24 +142,56 @@ class MarlinEmulator(GcodeMixin):
         return data
 
     def _run(self, now: float) -> None:
-        self.now = max(self.now, now)
-        self._boot(self.now)
-        if not self.killed and self.now >= self.booting_until:
-            self.planner.update(self.now)
+        target = max(self.now, now)
+        self._boot(target)
+        if self.killed or target < self.booting_until:
+            self.now = target
+            self._advance_motion(target)
+            return
+        while self.paused_until is not None and self.paused_until <= target:
+            t = self.paused_until  # the clean-up ends: quickstop_stepper() returns
+            self.now = t
+            self.planner.update(t)
+            self.paused_until = None
+            if self.quickstop_flag:  # another M410 came meanwhile: one command, then stop
+                self.quickstop_flag = False
+                self._loop_once()
+                if not self.killed:
+                    self._quick_stop(t)
+        self.now = target
+        self._advance_motion(target)
+        if self.paused_until is not None:  # idle() inside the stop: reads, runs nothing
+            self._read_serial(self.limits.bufsize - (1 if self.blocking else 0))
+        else:
             for _ in range(64):  # bounded work per call
-                if self.blocking is not None and not self._blocking_done():
-                    # lines keep coming in while a command waits (the real Marlin's `ok` of
-                    # an M400 counts a line sent meanwhile in B: issue 20's differential run)
-                    self._read_serial(self.limits.bufsize - 1)
+                if not self._loop_once():
                     break
-                self._read_serial()
-                if not self.queue:
-                    break
-                cmd, n = self.queue.pop(0)
-                self._execute(cmd, n)
-            if self.auto_report_s and self.now >= self.next_report:
-                self.out.append(self._position_line())
-                self.next_report = self.now + self.auto_report_s
+        if self.auto_report_s and self.now >= self.next_report and not self.killed:
+            self.out.append(self._position_line())
+            self.next_report = self.now + self.auto_report_s
+
+    def _loop_once(self) -> bool:
+        """One pass of Marlin's loop(): finish the command that holds the queue, or run the
+        next one; False when there was nothing to do."""
+        if self.blocking is not None:
+            if not self._blocking_done():
+                # lines keep coming in while a command waits (the real Marlin's `ok` of
+                # an M400 counts a line sent meanwhile in B: issue 20's differential run)
+                self._read_serial(self.limits.bufsize - 1)
+                return False
+            return True
+        self._read_serial()
+        if not self.queue:
+            return False
+        cmd, n = self.queue.pop(0)
+        self._execute(cmd, n)
+        return not self.killed
+
+    def _quick_stop(self, t: float) -> None:
+        """quickstop_stepper(): drop every planned block, stand, and pause the loop 1 s."""
+        self.planner.quick_stop(t)
+        self._sync_current_from_steppers()
+        self.paused_until = t + QUICK_STOP_CLEAN_S
 
     def _emergency(self, b: int, now: float) -> None:
         """M112 / M410 act as soon as their bytes arrive, before the queue sees them."""
@@ -150,11 +203,13 @@ class MarlinEmulator(GcodeMixin):
             if word == "M112" and not self.killed:
                 self.out += ["echo:M112 Shutdown", "Error:Printer halted. kill() called!",
                              "//action:poweroff"]
-                self.killed = True
+                self.planner.update(now)
+                self.killed, self.killed_at = True, now  # the steppers run MINKILL_S more
             elif word == "M410" and not self.killed:
-                self.planner.quick_stop(now)
-                self._sync_current_from_steppers()
-                self.cleaning_until = now + QUICK_STOP_CLEAN_S
+                if self.paused_until is None:
+                    self._quick_stop(now)
+                else:
+                    self.quickstop_flag = True
             self.emergency.clear()
         elif len(self.emergency) < 16:
             self.emergency.append(b)

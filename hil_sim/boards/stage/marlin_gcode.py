@@ -6,8 +6,6 @@ import re
 
 import numpy as np
 
-from dmdsm.marlin_patch import QUICK_STOP_CLEAN_S
-
 FIRMWARE_NAME = "Marlin bugfix-2.1.x (dmdsm hil_sim)"
 Z_AFTER_HOMING_MM = 5.0  # the real Chiron build stands at Z 5.00 after G28 (issue 20)
 
@@ -135,8 +133,6 @@ class GcodeMixin:
         start = self.planner.to_steps(self.current - self.offset)
         end = self.planner.to_steps(target - self.offset)
         self.current = target
-        if self.now < self.cleaning_until:  # dropped, as the planner does after M410
-            return True
         if self.planner.free_blocks() <= 0:
             self._block("move", 0.0, n, args=(start, end, self.feed_mm_s))
             return False
@@ -263,13 +259,11 @@ class GcodeMixin:
         self._block("sync", self.now, n)
         return False
 
-    def _M410(self, words: dict, n: int | None) -> bool:
-        if self.now >= self.cleaning_until:  # not already stopped by the emergency parser
-            self.planner.quick_stop(self.now)
-            self._sync_current_from_steppers()
-            self.cleaning_until = self.now + QUICK_STOP_CLEAN_S
-        self._block("sync", self.cleaning_until, n)  # the ok once the planner is clean
-        return False
+    def _M410(self, words: dict, n: int | None) -> None:
+        # with EMERGENCY_PARSER the stop happened when the line's bytes arrived (marlin.py
+        # _emergency); the queued command is a no-op (gcode.cpp `case 410: break;`), so its
+        # ok comes once the loop runs again, after the 1 s clean-up
+        pass
 
     def _M999(self, words: dict, n: int | None) -> bool:
         self.rx.clear()

@@ -181,9 +181,13 @@ check-marlin: deps avr
 	  apt-get update -qq && apt-get install -y -qq --no-install-recommends arduino-core-avr; }
 	$(PY) firmware/marlin_patch/apply.py $(APPLY_FLAGS) $(MARLIN)
 	sh firmware/marlin_patch/build_debian.sh $(MARLIN) $(CURDIR)/$(MARLIN_BUILD)
+	@# every step runs whatever an earlier one found, and the end reports each
+	@rc=0; drc=0; \
 	DMDSM_STAGE_FIRMWARE=$(CURDIR)/$(MARLIN_BUILD)/Marlin.elf $(PY) -m pytest -q -p no:cacheprovider \
-	  --durations=10 tests/stage
-	$(PY) tests/stage/differential.py $(MARLIN_BUILD)/Marlin.elf --lines 150
+	  -rfE --durations=10 tests/stage || rc=$$?; \
+	$(PY) tests/stage/differential.py $(MARLIN_BUILD)/Marlin.elf --lines 150 || drc=$$?; \
+	echo "---- check-marlin: tests/stage $$( [ $$rc = 0 ] && echo passed || echo "FAILED ($$rc)"), differential $$( [ $$drc = 0 ] && echo passed || echo "FAILED ($$drc)")"; \
+	exit $$(( rc || drc ))
 
 ## ---------------------------------------------------------------- demo
 demo: deps

@@ -67,8 +67,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     staged = argparse.ArgumentParser(add_help=False, parents=[common])
     staged.add_argument("--stage", help=STAGE_HELP)
-    for action, text in (("home", "home X, Y, Z (G28)"), ("where", "the position (M114)"),
-                         ("stop", "stop any move at once (M410), then say where")):
+    for action, text in (
+            ("home", "home X, Y, Z (G28)"),
+            ("where", "where the stage is now and whether it moves (M114 R)"),
+            ("stop", "stop any move at once (M410), also one another dmdsm runs; return "
+                     "once the stage stands")):
         psub.add_parser(action, parents=[staged], help=text)
     q = psub.add_parser("move", parents=[staged],
                         help="move, checked against the envelope and keep-out first")
@@ -232,17 +235,15 @@ def cmd_stage(args: argparse.Namespace) -> int:
     from ..links.stage import StageClient
 
     config = load_config(args.config)
-    # `stop` must act while another program's move runs: M410 goes out before the
-    # handshake, which waits behind a full planner
-    st = StageClient(resolve_port("stage", args.stage, config),
-                     stop_first=args.action == "stop")
+    port = resolve_port("stage", args.stage, config)
+    if args.action == "stop":
+        return _stop(args, port)
+    st = StageClient(port)
     try:
         if args.action == "home":
             pos = st.home()
         elif args.action == "where":
-            pos = st.where()
-        elif args.action == "stop":
-            pos = st.where()
+            return _where(args, st)
         else:
             pos = _move(st, args, config)
     except KeyboardInterrupt:
@@ -251,6 +252,56 @@ def cmd_stage(args: argparse.Namespace) -> int:
     finally:
         st.close()
     _out(args, pos, " ".join(f"{k}:{v:.3f}" for k, v in pos.items()))
+    return 0
+
+
+def _where(args: argparse.Namespace, st: object) -> int:
+    """Where the steppers are now and whether the stage moves (M114 R)."""
+    if st.busy_at_connect:  # Marlin reads nothing new until an earlier client's moves end
+        _out(args, {"moving": True, "earlier_client": True},
+             "moving: the stage is still running moves an earlier connection queued; "
+             "`dmdsm stage stop` stops them, `dmdsm stage where` says where once they end")
+        return 0
+    pos, moving = st.live()
+    _out(args, {**pos, "moving": moving},
+         " ".join(f"{k}:{v:.3f}" for k, v in pos.items()) +
+         (" moving" if moving else " standing"))
+    return 0
+
+
+def _stop(args: argparse.Namespace, port: str) -> int:
+    """Stop the stage whoever holds its port: this process opens it and quick-stops before
+    anything else (a killed client's moves keep running), or asks the dmdsm process that
+    holds it (stage_control) to stop and waits for its proof that the stage stands."""
+    from ..links import stage_control
+    from ..links.stage import StageClient
+    from ..links.transport import LinkError
+    from .errors import CliError
+
+    t0 = time.monotonic()
+    try:
+        st = StageClient(port, stop_first=True)
+    except LinkError as e:
+        if "in use by another program" not in str(e):
+            raise
+        try:
+            pid, where = stage_control.request_stop(port)
+        except stage_control.NoOwner:
+            raise CliError(f"{port} is held by a program that is not dmdsm (OctoPrint, a "
+                           f"terminal?): stop the stage there") from None
+        except RuntimeError as e2:
+            raise CliError(str(e2)) from None
+        pos = {k: float(v) for k, v in (w.split(":") for w in where.split())}
+        _out(args, {**pos, "moving": False, "stopped_in_pid": pid,
+                    "seconds": round(time.monotonic() - t0, 3)},
+             f"stopped (the move of dmdsm pid {pid}); standing at {where}")
+        return 0
+    try:
+        pos = st.stop()
+    finally:
+        st.close()
+    _out(args, {**pos, "moving": False, "seconds": round(time.monotonic() - t0, 3)},
+         "stopped; standing at " + " ".join(f"{k}:{v:.3f}" for k, v in pos.items()))
     return 0
 
 

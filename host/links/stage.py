@@ -9,17 +9,25 @@ its `ok N` carries the number, where M105's `ok T:0` carries none), and Marlin's
 `ok N`, or a Resend) tells which lines were really executed. Text printed before an `ok N`
 belongs to the lines that ok acknowledges, so a lost ok loses no reply. A plain `ok` (an
 unnumbered line's, or one Marlin adds after an error) never acknowledges a numbered line.
+
+A stop (M410, through Marlin's emergency parser) drops the planned moves at once, but the lines
+Marlin had not read yet run after its 1 s clean-up; so stop() quick-stops again after each of
+them is acknowledged and returns only once the stage is proven standing (M114 R twice, no
+planned block). Another terminal's `dmdsm stage stop` reaches the client through
+stage_control's socket.
 """
 
 from __future__ import annotations
 
 import re
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
-from dmdsm.marlin_patch import MachineLimits, load_machine, numbered
+from dmdsm.marlin_patch import QUICK_STOP_CLEAN_S, MachineLimits, load_machine, numbered
 
+from . import stage_control
 from .safety import UnsafeMove, check_target
 from .transport import LinkError, open_port
 
@@ -31,12 +39,30 @@ RX_BUFFER = CHIRON.rx_buffer_size - 1  # bytes Marlin's ring takes before the ol
 LONG = ("G28", "M400", "G4", "G29")
 MAX_LINE = CHIRON.max_cmd_size - 1     # MAX_CMD_SIZE less its terminator: Marlin cuts longer lines
 PROBE = "M114"       # numbered, harmless, answered with `ok N`
+MAX_FREE_BLOCKS = CHIRON.block_buffer_size - 1  # `ok ... P<n>` when no move is planned
+STILL_S = 0.1        # two real-time positions this far apart (stage time) prove standing
 BOOT_S = 3.0         # a board reset by the port opening: bootloader + boot banner
 M110_RETRY_S = 1.0   # M110 again after this long without its ok
 
 
 class StageError(LinkError):
     """The stage refused, halted or stopped answering; str() says what to do."""
+
+
+class StageStopped(StageError):
+    """A stop was asked from another terminal: this client's work on the stage has ended."""
+
+
+def clean_gcode(cmd: str) -> str:
+    """One G-code command as Marlin should see it: the `;` comment and outer blanks removed
+    (Marlin strips from `;` on, so a checksum after a comment would never match). Characters
+    that would end or break the numbered line are refused."""
+    text = cmd.split(";", 1)[0].strip()
+    bad = next((c for c in text if c in "*\n\r" or not " " <= c <= "~"), None)
+    if bad is not None:
+        raise StageError(f"G-code {text[:40]!r} holds {bad!r}, which Marlin's line format "
+                         f"cannot carry: send printable ASCII without '*'")
+    return text
 
 
 @dataclass
@@ -72,22 +98,43 @@ class StageClient:
         self.plain_oks_expected = 0  # oks of unnumbered lines (emergency M410)
         self.stats = StageStats()
         self.last_position: dict[str, float] | None = None  # from M114 or M154 reports
+        self.last_free_blocks: int | None = None           # P of the latest `ok N P B`
         self.halted = False
+        self.busy_at_connect = False  # the board was still running an earlier client's lines
+        self._wlock = threading.Lock()   # one writer at a time: a stop never splits a line
+        self._io = threading.RLock()     # one reader: the caller's operation or a stop
+        self._stop_request = threading.Event()
+        self._stopper: int | None = None  # thread running a stop asked from elsewhere
+        self._connecting = False
+        self.server: stage_control.StopServer | None = None
         if stop_first:  # M410 acts on receipt (emergency parser): before anything can queue
             self.plain_oks_expected += 1
             self._write("M410\n")
-        self._reset_line_numbers()
+        try:
+            self._reset_line_numbers()
+        except BaseException:
+            self.ser.close()
+            raise
+        stage_control.clear_halted(port)
+        try:
+            self.server = stage_control.StopServer(port, self._remote_stop)
+        except OSError:
+            self.server = None  # no runtime folder: stops from other terminals unavailable
 
     def close(self) -> None:
-        """Close the port."""
-        self.ser.close()
+        """Close the port (after a stop asked from elsewhere has finished)."""
+        if self.server is not None:
+            self.server.close()
+            self.server = None
+        with self._io:
+            self.ser.close()
 
     def __enter__(self) -> StageClient:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
         """On Ctrl-C or an error during motion: quick-stop (M410), then close."""
-        if exc_type is not None and not self.halted:
+        if exc_type is not None and not self.halted and not self._stop_request.is_set():
             try:
                 self._write("M410\n")
             except StageError:
@@ -97,8 +144,9 @@ class StageClient:
     # ------------------------------------------------------------------ wire
     def _write(self, text: str) -> None:
         try:
-            self.ser.write(text.encode())
-        except (OSError, ValueError) as e:
+            with self._wlock:
+                self.ser.write(text.encode())
+        except (OSError, ValueError, TypeError) as e:
             raise StageError(f"lost the stage on {self.port_name}: {e}") from None
 
     def _send_line(self, n: int, cmd: str, line: str | None = None) -> None:
@@ -132,6 +180,8 @@ class StageClient:
             m = OK_N.match(line)
             if m:
                 n = int(m.group(1))
+                if m.group(2) is not None:
+                    self.last_free_blocks = int(m.group(2))
                 if n in self.unacked:
                     # in order: all up to n; an earlier line whose ok was lost printed its
                     # text before this ok too, so every line acknowledged here keeps it
@@ -177,6 +227,9 @@ class StageClient:
         """Read and handle lines until done() or the deadline; busy lines extend it."""
         deadline = until
         while not done():
+            if self._stop_request.is_set() and threading.get_ident() != self._stopper:
+                raise StageStopped(f"the stage on {self.port_name} was stopped from another "
+                                   f"terminal")
             if self.halted:
                 raise StageError("the stage firmware halted (kill() called): press the "
                                  "board's reset button or power-cycle it, then home again")
@@ -188,6 +241,8 @@ class StageClient:
                 self._handle(line)
             if self.stats.busy != busy_before:
                 deadline = time.monotonic() + self.timeout_s
+                if self._connecting:
+                    self.busy_at_connect = True
 
     # ------------------------------------------------------------------ commands
     def _reset_line_numbers(self) -> None:
@@ -197,26 +252,39 @@ class StageClient:
         self.ignore_resend_of = None
         line = numbered(0, "M110 N0")
         self.unacked[0] = line
+        self._connecting = True
         try:
             # opening the port may reset the board (DTR: bootloader ~1-2 s, then its banner);
-            # an M110 sent meanwhile is lost, so it goes again until acknowledged
+            # an M110 sent meanwhile is lost, so it goes again until acknowledged. A board
+            # still running an earlier client's moves says `busy`: the M110 waits behind
+            # them, and so will every line after it, in order, so the link is usable now
             end = time.monotonic() + self.timeout_s + BOOT_S
             while True:
                 self._write(line)
                 try:
                     self._pump(min(time.monotonic() + M110_RETRY_S, end),
-                               lambda: 0 not in self.unacked)
+                               lambda: 0 not in self.unacked or self.busy_at_connect)
                     break
                 except TimeoutError:
                     if time.monotonic() >= end:
+                        note = stage_control.halted_note(self.port_name)
+                        if note:
+                            raise StageError(
+                                f"the stage on {self.port_name} is halted ({note.get('how')} "
+                                f"sent at {note.get('at')} by pid {note.get('pid')}): press "
+                                f"the board's reset button or power-cycle it, then home "
+                                f"again") from None
                         raise StageError(f"the stage on {self.port_name} does not answer "
                                          f"(M110): check the cable and that it runs the "
-                                         f"dmdsm Marlin (docs/marlin.md)") from None
+                                         f"dmdsm Marlin (docs/marlin.md); a board halted "
+                                         f"by M112 answers nothing until it is reset") from None
         except StageError:
             if self._is_sensor_board():
                 raise StageError(f"{self.port_name} is the dmdsm sensor board, not the stage "
                                  f"(Marlin): swap the two port names") from None
             raise
+        finally:
+            self._connecting = False
 
     def _is_sensor_board(self) -> bool:
         """True if a dmdsm protocol ping gets a pong (the ports were swapped)."""
@@ -258,17 +326,37 @@ class StageClient:
         self.next_n += 1
         self._send_line(n, PROBE)
 
+    def _check_usable(self) -> None:
+        if self._stop_request.is_set() and threading.get_ident() != self._stopper:
+            raise StageStopped(f"the stage on {self.port_name} was stopped from another "
+                               f"terminal: nothing more is sent on this connection")
+        if self.halted:
+            raise StageError("the stage firmware is halted (M112): press the board's reset "
+                             "button or power-cycle it, then home again")
+
     def send(self, cmd: str, timeout_s: float | None = None, wait: bool = True) -> list[str]:
-        """Send one command; with wait, return the lines it printed before its ok."""
+        """Send one command (its `;` comment dropped); with wait, return the lines it printed
+        before its ok. A command Marlin could not take whole is refused unsent."""
+        cmd = clean_gcode(cmd)
+        if not cmd:
+            return []
+        with self._io:
+            self._check_usable()
+            # a line that can never fit Marlin's line or receive ring is refused before any
+            # wait for room (the numbers probes may take meanwhile are counted in)
+            longest = len(numbered(self.next_n + 8, cmd)) - 1
+            if longest > MAX_LINE or longest + 13 > RX_BUFFER:
+                raise StageError(f"G-code line too long for Marlin ({longest} > {MAX_LINE} "
+                                 f"characters): {cmd[:40]}...; split it")
+            return self._send_locked(cmd, timeout_s, wait)
+
+    def _send_locked(self, cmd: str, timeout_s: float | None, wait: bool) -> list[str]:
         # flow control: command slots and the firmware's 128-byte receive ring
         self._await(lambda: len(self.unacked) < self.window
                     and self._bytes_in_flight() + len(cmd) + 12 <= RX_BUFFER,
                     self.timeout_s, "no room in the command buffer")
         n = self.next_n  # numbered only now: probes while waiting take numbers too
         line = numbered(n, cmd)
-        if len(line) - 1 > MAX_LINE:  # Marlin would cut it and lose the checksum: unsent
-            raise StageError(f"G-code line too long for Marlin ({len(line) - 1} > {MAX_LINE} "
-                             f"characters): {cmd[:40]}...; split it")
         self.next_n += 1
         self._send_line(n, cmd, line)
         if not wait:
@@ -279,8 +367,9 @@ class StageClient:
 
     def drain(self, timeout_s: float | None = None) -> None:
         """Wait until every line sent has been acknowledged."""
-        if self.unacked:
-            self._wait_acked(next(reversed(self.unacked)), timeout_s or self.timeout_s)
+        with self._io:
+            if self.unacked:
+                self._wait_acked(next(reversed(self.unacked)), timeout_s or self.timeout_s)
 
     # ------------------------------------------------------------------ operations
     def home(self, axes: str = "XYZ") -> dict[str, float]:
@@ -299,6 +388,10 @@ class StageClient:
         if feed_mm_min is not None and not 0 < feed_mm_min < float("inf"):
             raise UnsafeMove(f"feedrate {feed_mm_min} mm/min: give a positive number (Marlin "
                              f"would keep its last one)")
+        fastest = 60.0 * max(self.limits.max_feedrate)
+        if feed_mm_min is not None and feed_mm_min > fastest:
+            raise UnsafeMove(f"feedrate {feed_mm_min:g} mm/min is above the machine's fastest "
+                             f"axis ({fastest:g} mm/min): give at most that")
         words = [f"{k}{v:.4f}" for k, v in zip("XYZA", (x, y, z, a)) if v is not None]
         if feed_mm_min:
             words.append(f"F{feed_mm_min:.0f}")
@@ -314,26 +407,82 @@ class StageClient:
 
     def where(self) -> dict[str, float]:
         """M114: the position of the last queued move (mm, deg)."""
-        self.drain()
-        lines = self.send("M114")
+        with self._io:
+            self.drain()
+            pos, _ = self._report("M114")
+            return pos
+
+    def _report(self, cmd: str) -> tuple[dict[str, float], str]:
+        lines = self.send(cmd)
         reports = [x for x in lines if x.startswith("X:")]
         if not reports:
-            raise StageError("M114 gave no position: is this the dmdsm Marlin?")
+            raise StageError(f"{cmd} gave no position: is this the dmdsm Marlin?")
         pos = {k: float(v) for k, v in POSITION.findall(reports[-1].split("Count")[0])}
         self.last_position = pos
-        return pos
+        return pos, reports[-1].split("Count", 1)[-1]
 
-    def stop(self) -> None:
-        """M410 through the emergency parser: stop now, drop queued moves; port stays usable."""
+    def live(self) -> tuple[dict[str, float], bool]:
+        """Where the steppers are now (M114 R, mm and deg) and whether the stage is moving:
+        a move is planned (`ok ... P` below the empty planner's) or the position changed
+        over STILL_S."""
+        with self._io:
+            first, counts = self._report("M114 R")
+            if self.last_free_blocks is not None and self.last_free_blocks < MAX_FREE_BLOCKS:
+                return first, True
+            time.sleep(STILL_S)
+            second, counts2 = self._report("M114 R")
+            planned = self.last_free_blocks is not None and \
+                self.last_free_blocks < MAX_FREE_BLOCKS
+            return second, planned or counts2 != counts
+
+    def stop(self) -> dict[str, float]:
+        """Quick-stop (M410, emergency parser) and return the position once the stage is
+        proven standing. Lines Marlin had not read yet run after its clean-up, so each one
+        acknowledged is answered with another M410; 0 moves run after this returns."""
         self.plain_oks_expected += 1
         self._write("M410\n")
-        time.sleep(0.05)
-        self.drain(timeout_s=self.timeout_s)
+        with self._io:
+            return self._settle_stop()
+
+    def _settle_stop(self) -> dict[str, float]:
+        limit = time.monotonic() + (len(self.unacked) + 3) * (QUICK_STOP_CLEAN_S +
+                                                              self.timeout_s)
+        while self.unacked:
+            oldest = next(iter(self.unacked))
+            try:
+                self._pump(limit, lambda: oldest not in self.unacked)  # noqa: B023
+            except TimeoutError:
+                raise StageError(f"the stage on {self.port_name} did not acknowledge the "
+                                 f"lines sent before the stop: it may still move; press "
+                                 f"its reset button") from None
+            self.plain_oks_expected += 1
+            self._write("M410\n")  # a line just run: drop its move before it steps
+        for _ in range(int(30 / STILL_S)):  # proof: nothing planned, counts unchanged
+            pos, moving = self.live()
+            if not moving:
+                return pos
+        raise StageError(f"the stage on {self.port_name} kept moving after the stop: "
+                         f"press its reset button")
+
+    def _remote_stop(self) -> str:
+        """A stop asked from another terminal (stage_control): quick-stop at once, end the
+        owner's operation on the stage, prove standing, and say where."""
+        self._stop_request.set()
+        self.plain_oks_expected += 1
+        self._write("M410\n")
+        with self._io:  # the owner's pump raises StageStopped and lets go
+            self._stopper = threading.get_ident()
+            try:
+                pos = self._settle_stop()
+            finally:
+                self._stopper = None
+        return " ".join(f"{k}:{v:.3f}" for k, v in pos.items())
 
     def emergency_stop(self) -> str:
         """M112: the firmware halts until its reset button is pressed."""
         self._write("M112\n")
         self.halted = True
+        stage_control.note_halted(self.port_name, "M112")
         return ("emergency stop sent: the stage firmware is halted; press the board's reset "
                 "button (or power-cycle it), then home again")
 

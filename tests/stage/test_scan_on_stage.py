@@ -62,9 +62,10 @@ def test_step_then_fly_both_meet_the_paper_and_fly_places_every_waveform(emulato
         err.append(x - rec[i:i + int(n), 1].mean())
     err = np.array(err)
     # The frame: the truth's origin is the endstop switch, Marlin's is where its homing
-    # stopped, at most one step past the switch (the emulator: on it).
+    # stopped, 0-2 steps past the switch on the real Marlin by where it starts (the
+    # emulator: on it).
     offset = np.median(err)
-    assert abs(offset) * 1e3 <= STEP_UM + 2.0, offset
+    assert abs(offset) * 1e3 <= 2 * STEP_UM + 2.0, offset
     # counted steps: the emulator's 2 um stage scatter and the steps' quantisation left
     assert np.abs(err - offset).max() < 0.008, np.abs(err - offset).max()
     for line in range(4):  # waveforms one step apart along each line, none missing

@@ -41,3 +41,14 @@ def test_to_toml_round_trips_through_load_plan(plan, tmp_path_factory):
     # they read back as the defaults, which only a fly scan uses
     expect = plan if plan.mode == "fly" else ScanPlan(**{**vars(plan), "laser_hz": 1000.0})
     assert back == expect and back.hash() == plan.hash()
+
+
+def test_a_feed_above_the_fastest_axis_is_refused_in_the_plan():
+    """Issue 29: `feed_mm_min = 1e308` ended as "check the cable" and an empty scan."""
+    import pytest
+
+    from dmdsm.host.scan.plan import PlanError
+    for feed in (1e308, 12001.0):
+        with pytest.raises(PlanError, match="feed_mm_min must be above 0 and at most"):
+            ScanPlan(object_id="cup", feed_mm_min=feed).validate()
+    ScanPlan(object_id="cup", feed_mm_min=12000.0).validate()

@@ -36,7 +36,18 @@ int run_lockstep(void)
 			}
 			continue;
 		}
-		if (!strncmp(line, "reset", 5)) {
+		if (line[0] == 'h' && line[1] == ' ') {
+			/* held in reset (the bootloader's time after DTR) up to this cycle: nothing
+			 * runs meanwhile, then the firmware starts from its reset vector once */
+			unsigned long long target = strtoull(line + 2, NULL, 10);
+			if (target > avr->cycle)
+				avr->cycle = target;
+			avr_reset(avr);
+			configure();
+			in_pos = in_len = 0;
+			uart_xon = 1;
+			state = cpu_Running;
+		} else if (!strncmp(line, "reset", 5)) {
 			avr_reset(avr);
 			configure();
 			in_pos = in_len = 0;  /* the bootloader does not keep what came meanwhile */

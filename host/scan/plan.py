@@ -88,6 +88,12 @@ class ScanPlan:
                                 f"{self.average} and laser_hz {self.laser_hz:g} moves at "
                                 f"{v:.0f} mm/s, above the X axis's {vmax:g} mm/s: raise "
                                 f"average or lower step_mm")
+        from dmdsm.marlin_patch import load_machine as _machine
+
+        fastest = 60.0 * max(_machine().max_feedrate)
+        if not 0 < self.feed_mm_min <= fastest:
+            raise PlanError(f"feed_mm_min must be above 0 and at most the machine's fastest "
+                            f"axis, {fastest:g} mm/min (got {self.feed_mm_min:g})")
         if self.step_mm > 2 * self.half_width_mm:
             raise PlanError("step_mm is larger than the raster width (2 x half_width_mm)")
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int)}

@@ -57,6 +57,25 @@ def test_m115_reports_four_axes_and_host_capabilities(stage):
     assert "Cap:EMERGENCY_PARSER:1" in replies and "Cap:AUTOREPORT_POS:1" in replies
 
 
+def test_m115_names_the_build_and_every_capability_as_the_chiron_build(stage):
+    """Issue 29: the real build names its date, the kinematics and these capabilities."""
+    replies = stage.send("M115")
+    assert re.match(r"FIRMWARE_NAME:Marlin bugfix-2\.1\.x \(\w{3} [ \d]\d \d{4} "
+                    r"\d\d:\d\d:\d\d\) ", replies[0]), replies[0]
+    assert "KINEMATICS:Cartesian" in replies[0]
+    for cap in ("BUILD_PERCENT:1", "PROMPT_SUPPORT:1", "THERMAL_PROTECTION:1"):
+        assert f"Cap:{cap}" in replies
+
+
+def test_m117_is_taken_and_a_blank_line_is_an_unknown_empty_command(stage):
+    assert OK.match(stage.send("M117 scanning")[-1])
+    stage.raw("   \n")
+    replies = stage.until_ok()
+    assert replies[0] == 'echo:Unknown command: ""' and replies[-1].startswith("ok P")
+    stage.raw("\n")  # an empty line is nothing at all
+    assert OK.match(stage.send("G90")[-1])
+
+
 def _pos(line):
     return {k: float(v) for k, v in re.findall(r"([XYZA]):(-?\d+\.\d+)", line.split("Count")[0])}
 

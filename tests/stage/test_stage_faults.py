@@ -93,9 +93,13 @@ def test_an_over_long_line_is_refused_before_it_is_sent(stage_sim):
     sim, server, port = stage_sim()
     st = StageClient(port)
     st.send("G92 A1")
+    t0 = time.monotonic()
     with pytest.raises(StageError, match="too long for Marlin"):
-        st.send("G92 A2 ; " + "x" * 100)
-    assert st.where()["A"] == 1.0  # not run, and the link goes on
+        st.send("M117 " + "x" * 130)  # longer than Marlin's line and its receive ring
+    assert time.monotonic() - t0 < 1.0  # refused at once, not after waiting for room
+    st.send("G92 A2 ; " + "x" * 100)  # a comment is not sent: Marlin would drop it anyway
+    assert st.where()["A"] == 2.0  # run, and the link goes on
+    st.send("G92 A1")
     st.close()
 
 
@@ -117,6 +121,24 @@ def test_an_extra_plain_ok_acknowledges_no_numbered_line(stage_sim):
     st.drain(timeout_s=5)
     assert n not in st.unacked
     st.close()
+
+
+def test_the_dtr_reset_restarts_the_firmware_once(stage_sim):
+    """Held in the bootloader, the firmware does not run; it starts once when the hold ends
+    (the lock-step harness used to restart the AVR at every step of the hold)."""
+    from stage_link import StageLink
+    sim, server, port = stage_sim()
+    link = StageLink(port)
+    link.lines(0.5)
+    with server.lock:
+        sim.stage.reset(sim.t, boot_s=1.0)
+    t_end = sim.t + 3.0
+    seen = []
+    while sim.t < t_end:
+        seen += link.lines(0.1)
+    link.close()
+    assert seen.count("start") == 1, seen[:12]
+    assert any("Marlin bugfix-2.1.x" in x for x in seen)
 
 
 def test_connect_survives_the_board_resetting_when_the_port_opens(stage_sim):

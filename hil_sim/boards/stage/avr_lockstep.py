@@ -142,11 +142,15 @@ class AvrStageBoard:
         return self._drop_oks(data)
 
     def _run_to(self, now: float) -> None:
-        if now > self.now:
+        if now <= self.now:
+            return
+        if now < self.booting_until:  # held by the bootloader: Marlin's code does not run
             self.now = now
-            self.out_buffer += self._command(f"r {round(now * F_CPU_HZ)}")
-            if now < self.booting_until:  # still in the bootloader: Marlin has not started
-                self._command("reset")
+            return
+        if self.now < self.booting_until:  # the hold ends: Marlin starts once, from reset
+            self._command(f"h {round(self.booting_until * F_CPU_HZ)}")
+        self.now = now
+        self.out_buffer += self._command(f"r {round(now * F_CPU_HZ)}")
 
     def _drop_oks(self, data: bytes) -> bytes:
         """The stage.lost_ok fault: whole `ok` lines vanish on their way to the host."""
@@ -168,7 +172,7 @@ class AvrStageBoard:
         takes what the host sends meanwhile, then the firmware restarts (the carriage stays)."""
         self._run_to(now)
         self.booting_until = now + boot_s
-        self._command("reset")
+        self._command("reset")  # the bytes sent meanwhile are lost; the hold ends in _run_to
 
     def position_at(self, t: float) -> np.ndarray:
         """Where the carriage was at time t (s): X, Y, Z from their min endstops (mm) and A

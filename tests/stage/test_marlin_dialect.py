@@ -1,9 +1,15 @@
 """Marlin serial dialect conformance: hil_sim, or a real board with DMDSM_STAGE_PORT."""
 
+import os
 import re
 import time
 
+import pytest
+from stage_link import StageLink
+
 from dmdsm.marlin_patch import load_machine
+from dmdsm.sim.servers.emulator import Emulator
+from dmdsm.sim.servers.runner import SimConfig
 
 OK = re.compile(r"^ok N(\d+) P(\d+) B(\d+)$")
 LIMITS = load_machine()
@@ -264,3 +270,43 @@ def test_a_slow_turn_runs_at_its_feedrate(stage):
     assert 9.0 < took < 9.6, took
     stage.send(f"G1 A{here:.2f} F{LIMITS.max_feedrate[3] * 60:.0f}")  # back where it was
     stage.send("M400", timeout=60)
+
+
+def test_a_line_error_inside_a_burst_drops_the_lines_behind_it(stage):
+    """Issue 29: Marlin prints the error, then drains its receive ring (what arrived while
+    the error went out included); the bad line is asked again and no line behind it ran
+    (a tail that arrives after the drain has no number and runs as an unnumbered command,
+    so the burst uses G92 A values whose tails are unknown commands)."""
+    stage.send("G92 A0")
+    k = stage.n
+    burst = (stage.numbered("G92 A1") + stage.numbered("G92 A2", good_checksum=False) +
+             stage.numbered("G92 A7") + stage.numbered("G92 A9"))
+    stage.raw(burst)
+    replies = stage.lines(1.5 / stage.speed + 0.5)
+    errors = [x for x in replies if x.startswith("Error:")]
+    assert errors[0] == f"Error:checksum mismatch, Last Line: {k + 1}"
+    assert replies[replies.index(errors[0]) + 1] == f"Resend: {k + 2}"
+    assert all(x == f"Resend: {k + 2}" for x in replies if x.startswith("Resend"))
+    stage.n = k + 1
+    report = [x for x in stage.send("M114") if x.startswith("X:")][-1]
+    assert _pos(report)["A"] == 1.0, report  # A1 ran; A2, A7 and A9 did not
+
+
+@pytest.mark.realtime
+def test_at_power_up_the_carriage_is_taken_to_be_at_its_home_position():
+    """Issue 29: before any G28 the real Chiron build reports X -10 (its X_MIN_POS) with the
+    counts to match; the emulator reported 0."""
+    if os.environ.get("DMDSM_STAGE_PORT"):
+        pytest.skip("a real board on a port may have moved since it was switched on")
+    elf = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
+    with Emulator(SimConfig(seed=2, stage_firmware=elf), speed=1.0 if elf else 5.0) as emu:
+        link = StageLink(emu.stage)
+        try:
+            link.lines(0.5)
+            link.reset_numbers()
+            report = link.send("M114")[0]
+        finally:
+            link.close()
+    spu = LIMITS.steps_per_unit
+    assert report == (f"X:-10.00 Y:0.00 Z:0.00 A:0.00 Count X:{round(-10 * spu[0])} Y:0 Z:0 "
+                      f"A:0"), report

@@ -36,6 +36,8 @@ class StageFaults:
     lose_next_oks: int = 0        # the next this many `ok`s are not sent (tests)
 
 
+TX_BUFFER_BYTES = 32  # the patch's TX_BUFFER_SIZE: a longer reply blocks until the rest fits
+BYTE_S = 10 / 250000  # one byte on the wire at 250 kbaud, 8N1 (s)
 READ_LAG_BYTES = 12  # bytes that arrive (at 250 kbaud, ~0.5 ms) before the main loop reads a
 # finished line: a line error then flushes them, and the rest of a burst is read from mid-line
 
@@ -91,14 +93,20 @@ class MarlinEmulator(GcodeMixin):
         self.quickstop_flag = False
         self.relative = False
         self.feed_mm_s = 50.0
-        self.current = np.zeros(n)  # logical position of the last queued move (mm, deg)
-        self.offset = np.zeros(n)   # logical - raw (homing's min position + G92 shift)
-        self.native0 = np.zeros(n)  # native - raw: the min position once an axis is homed
+        # at power-up Marlin takes the carriage to be at its home position: X Y Z at their min
+        # positions (the Chiron: X -10, `X:-10.00 ... Count X:-800`), A at 0
+        home = np.array([self.limits.min_pos[i] if a in "XYZ" else 0.0
+                         for i, a in enumerate(self.limits.axes)], float)
+        self.current = home.copy()  # logical position of the last queued move (mm, deg)
+        self.offset = home.copy()   # logical - raw (homing's min position + G92 shift)
+        self.native0 = home.copy()  # native - raw: the min position once an axis is homed
         self.homed = [False] * n
         self.blocking: dict | None = None  # the command in progress that holds the queue
         self.auto_report_s = 0.0
         self.next_report = 0.0
         self.emergency = bytearray()
+        self.discard = 0           # received bytes a line error's drain still takes
+        self.discard_until = 0.0
         self.executed: list[tuple[int | None, str]] = []  # ground truth: (N, command) in order
         self.now = now
         self.booting_until = now + boot_s
@@ -144,6 +152,9 @@ class MarlinEmulator(GcodeMixin):
             if len(self.rx) >= self.limits.rx_buffer_size or (behind or 0) >= READ_LAG_BYTES:
                 self._run(now)  # the main loop reads the ring while bytes keep arriving
                 behind = None
+            if self.discard and now <= self.discard_until:
+                self.discard -= 1  # drained after a line error (_line_error)
+                continue
             if len(self.rx) < self.limits.rx_buffer_size:
                 self.rx.append(b)  # else lost, as on the ATmega2560 (command slots full)
             if behind is not None:
@@ -249,9 +260,14 @@ class MarlinEmulator(GcodeMixin):
                 self._accept(text.strip())
 
     def _line_error(self, message: str) -> None:
-        self.out.append(f"Error:{message}, Last Line: {self.last_n}")
-        self.rx.clear()  # flush_and_request_resend
+        error = f"Error:{message}, Last Line: {self.last_n}"
+        self.out.append(error)
+        # gcode_line_error prints the error first (blocking while it does not fit the TX
+        # buffer), then drains the RX ring: what arrives while the line goes out is lost too
+        self.rx.clear()
         self.line.clear()
+        self.discard = max(0, len(error) + 1 - TX_BUFFER_BYTES)
+        self.discard_until = self.now + self.discard * BYTE_S
         self.out += [f"Resend: {self.last_n + 1}", "ok"]
 
     def _accept(self, text: str) -> None:
@@ -277,13 +293,14 @@ class MarlinEmulator(GcodeMixin):
                 return
         if "*" in text:
             body, _, cs = text.rpartition("*")
-            try:
-                ok = int(cs) == checksum(body)
-            except ValueError:
-                ok = False
-            if not ok:
-                self._line_error("checksum mismatch")
-                return
+            if n is not None:  # only a numbered line's checksum is checked (queue.cpp);
+                try:           # an unnumbered one, e.g. a burst's tail after a flush, runs
+                    ok = int(cs) == checksum(body)
+                except ValueError:
+                    ok = False
+                if not ok:
+                    self._line_error("checksum mismatch")
+                    return
             text = body
         if n is not None and self.faults.spurious_resend and \
                 self.rng.random() < self.faults.spurious_resend:

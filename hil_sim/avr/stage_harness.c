@@ -16,7 +16,9 @@
  * time. stdin lines: "w HEX" queues bytes for UART0; "r CYCLE" runs until that CPU cycle,
  * then prints "u HEX" (UART0 output, if any), "e AXIS S1 S2 ..." per axis that stepped (each
  * step's cycle + 1, negative for a step down) and "d CYCLE STATE"; "reset" is the DTR reset
- * (counts kept: the carriage does not move) and answers "d CYCLE STATE"; "quit" ends it.
+ * (counts kept: the carriage does not move) and answers "d CYCLE STATE"; "h CYCLE" ends the
+ * bootloader's hold: the clock jumps to CYCLE with nothing run, then the chip starts from
+ * reset once; "quit" ends it.
  */
 #define _GNU_SOURCE
 #include <errno.h>

@@ -132,7 +132,8 @@ def test_the_emulator_follows_the_settings_file(tmp_path):
             body = f"N{n} {cmd}"
             m.receive(f"{body}*{checksum(body)}\n".encode(), 0.0)
         out = m.step(10.0).decode()
-        assert f"Count X:0 Y:0 Z:0 A:{steps}" in out
+        # X counts from its power-up home position, X_MIN_POS -10 mm, at 80 steps/mm
+        assert f"Count X:-800 Y:0 Z:0 A:{steps}" in out
 
 
 def test_the_host_envelope_follows_the_settings_file(tmp_path):

@@ -139,7 +139,7 @@ def test_the_x_step_line_is_time_stamped_by_tim2_ch2_and_reported_as_one_burst()
     host = start()
     host.request("identify")
     sim = host.sim
-    sim.write("stage", b"G1 X10 F3000\n")  # 800 steps of X from rest
+    sim.write("stage", b"G1 X0 F3000\n")  # 800 steps of X from rest (X -10 at power-up)
     msgs = host.collect(1.0)
     assert sim.sensor.violation is None, str(sim.sensor.violation)
     syncs = [m for m in msgs if m.name == "motion_sync"]

@@ -1,8 +1,8 @@
 """The stop suite (issue 29): a stop within a move, behind queued and not yet parsed lines, from
-a second terminal, and after the owner was killed, on the Marlin emulator here and on the
-real Marlin under simavr in `make check-marlin`. Each ends with the stage proven still from
-its STEP pins (the emulator's step log): no step after stop() returned, and the time from the
-request to the last step within STAND_S of stage time."""
+a second terminal (also during a fly scan) and after the owner was killed, on the Marlin
+emulator here and on the real Marlin under simavr in `make check-marlin`. Each ends with the
+stage proven still from its STEP pins (the emulator's step log): no step after stop()
+returned, and the time from the request to the last step within STAND_S of stage time."""
 
 import os
 import signal
@@ -13,8 +13,11 @@ import time
 
 import numpy as np
 import pytest
+from fly_scan_helpers import scan_cmd, setup
 
+from dmdsm.host.links.sensor import SPEC, SensorClient
 from dmdsm.host.links.stage import StageClient, StageError, StageStopped
+from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.sim.servers.emulator import Emulator
 from dmdsm.sim.servers.runner import SimConfig
 
@@ -202,3 +205,44 @@ def test_emergency_stop_halts_for_good(emu):
     assert steps_between(emu, t_request + 1.0, emu.sim.t) == 0
     with pytest.raises(StageError, match="halted .M112 sent"):
         StageClient(emu.stage, timeout_s=1.0)
+
+
+def test_a_stop_from_another_terminal_during_a_fly_scan(emulator, tmp_path):
+    """`dmdsm stage stop` while a fly scan holds the stage port (its next line moving) asks
+    the scan's process to quick-stop; the scan keeps its whole lines, says so in one line,
+    disarms the sensor, and the same command resumes it. No step after the stop returned."""
+    emu = emulator(speed=SPEED, scene="aluminium_block", seed=11, stage_firmware=ELF)
+    setup(emu, tmp_path, angles=(0.0, 90.0, 180.0))
+    path = tmp_path / "db" / "scans" / "held.h5"
+    proc = subprocess.Popen(scan_cmd(emu, tmp_path, "held"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            if read_scan(path, waveforms=False).n_points:
+                break
+        except Exception:
+            pass
+        time.sleep(0.02)
+    stop = subprocess.run([sys.executable, "-m", "dmdsm.host", "stage", "stop", "--stage",
+                           emu.stage, "--json"], capture_output=True, text=True, timeout=120)
+    t_return = emu.sim.t
+    _, err = proc.communicate(timeout=120)
+    assert stop.returncode == 0, stop.stderr
+    assert f'"stopped_in_pid": {proc.pid}' in stop.stdout, stop.stdout
+    assert proc.returncode != 0 and "Traceback" not in err
+    assert "stopped from another terminal" in err and "run the same command to continue" in err
+    time.sleep(1.0)
+    assert not any(len(emu.sim.stage.step_edges(a, t_return, emu.sim.t)) for a in range(4))
+    cut = read_scan(path)
+    lines = sorted(set(cut.points["point_index"].tolist()))
+    assert lines and lines == list(range(len(lines))) and len(lines) < 3
+    s = SensorClient(emu.sensor)  # the scan disarmed the sensor on its way out
+    try:
+        assert s.status()["state"] == SPEC.enums["state"]["idle"]
+    finally:
+        s.close()
+    r = subprocess.run(scan_cmd(emu, tmp_path, "held"), capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stderr
+    assert read_scan(path, waveforms=False).entry["status"] == "complete"

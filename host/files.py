@@ -36,3 +36,19 @@ def vector3(value: object, what: str, nonzero: bool = False) -> list[float]:
     if nonzero and not any(value):
         raise ValueError(f"{what} is a direction and cannot be [0, 0, 0]")
     return [float(x) for x in value]
+
+
+def not_utf8(path: Path, kind: str) -> str:
+    """One line for a text file that is not UTF-8: what it seems to be and what to do."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        head = b""
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        seen = "UTF-16 text"
+    elif head[:4] in (b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff"):
+        seen = "UTF-32 text"
+    else:
+        seen = "not UTF-8 text"
+    return f"{path} is {seen}: save the {kind} as UTF-8 (the editor's 'Save with encoding')"

@@ -110,3 +110,18 @@ def test_extra_hdf5_datasets_are_ignored_and_bad_files_named(tmp_path):
         read_raw(tmp_path / "missing.h5")
     with pytest.raises(CalibrationError, match="not a dmdsm calibration data file"):
         RawWriter(other)
+
+
+def test_a_csv_with_a_byte_order_mark_reads_and_utf16_is_named(tmp_path):
+    """Issue 30: a spreadsheet's UTF-8 BOM gave a false "lacks column(s) step"; a UTF-16 file
+    was "not a calibration CSV" with no word of its encoding."""
+    path = tmp_path / "rig.csv"
+    append_rows(path, example_rows("tip", 2))
+    text = path.read_text()
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert read_raw(bom)["d_mm"].tolist() == [6.0, 6.01]
+    wide = tmp_path / "wide.csv"
+    wide.write_bytes(text.encode("utf-16"))
+    with pytest.raises(CalibrationError, match="is UTF-16 text: save the CSV as UTF-8"):
+        read_raw(wide)

@@ -8,6 +8,7 @@ from types import TracebackType
 
 import numpy as np
 
+from ..files import not_utf8
 from .solver import CalibrationError
 
 COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
@@ -36,11 +37,13 @@ def _missing(path: Path, have: list[str]) -> None:
 
 def _read_csv(path: Path) -> dict[str, list]:
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's BOM
             rows = list(csv.DictReader(f))
     except OSError as e:
         raise CalibrationError(f"cannot read {path}: {e.strerror}") from None
-    except (csv.Error, UnicodeDecodeError):
+    except UnicodeDecodeError:
+        raise CalibrationError(not_utf8(path, "CSV")) from None
+    except csv.Error:
         raise CalibrationError(f"{path} is not a calibration CSV (see docs/calibration.md)"
                                ) from None
     if not rows:

@@ -6,7 +6,7 @@ import os
 import tomllib
 from pathlib import Path
 
-from ..files import one_line, vector3
+from ..files import not_utf8, one_line, vector3
 
 CONFIG_PATHS = (Path("dmdsm.toml"), Path.home() / ".config/dmdsm/config.toml")
 
@@ -25,6 +25,8 @@ def load_config(path: Path | None = None) -> dict:
                     doc = tomllib.load(f)
             except tomllib.TOMLDecodeError as e:
                 raise ConfigError(f"{p}: not valid TOML ({e})") from None
+            except UnicodeDecodeError:
+                raise ConfigError(not_utf8(p, "config file")) from None
             except OSError as e:
                 raise ConfigError(f"cannot read config {p}: {e.strerror}") from None
             _check(doc, p)

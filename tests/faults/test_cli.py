@@ -227,3 +227,16 @@ def test_a_truth_file_with_impossible_sizes_is_one_line(tmp_path, capsys, size, 
         load_truth(truth)
     truth.write_text('shape = "box"\nsize_mm = [50, 30, 40]\n')
     assert load_truth(truth) == (50.0, 30.0)
+
+
+@pytest.mark.parametrize("encoding, words", [
+    ("utf-16", "is UTF-16 text: save the config file as UTF-8"),
+    ("latin-1", "is not UTF-8 text: save")])
+def test_a_config_file_not_in_utf8_is_named_in_one_line(tmp_path, capsys, encoding, words):
+    """Issue 30: a UTF-16 dmdsm.toml (a Windows editor's default) was a UnicodeDecodeError."""
+    cfg = tmp_path / "dmdsm.toml"
+    cfg.write_bytes('[ports]\nstage = "/dev/ttyUSB0"  # für den Tisch\n'.encode(encoding))
+    assert main(["stage", "where", "--config", str(cfg), "--stage", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert f"{cfg} {words}" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1

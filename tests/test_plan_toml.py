@@ -52,3 +52,14 @@ def test_a_feed_above_the_fastest_axis_is_refused_in_the_plan():
         with pytest.raises(PlanError, match="feed_mm_min must be above 0 and at most"):
             ScanPlan(object_id="cup", feed_mm_min=feed).validate()
     ScanPlan(object_id="cup", feed_mm_min=12000.0).validate()
+
+
+def test_a_settle_time_the_stage_would_not_honour_is_refused():
+    """Issue 30: `settle_s = 1e308` was accepted and then ran at 0.7 ms per point."""
+    import pytest
+
+    from dmdsm.host.scan.plan import PlanError
+    for settle in (1e308, 61.0):
+        with pytest.raises(PlanError, match="s of dwell per point"):
+            ScanPlan(object_id="cup", settle_s=settle).validate()
+    ScanPlan(object_id="cup", settle_s=60.0).validate()

@@ -64,6 +64,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_acquire)
 
     p = sub.add_parser("stage", help="home, move, where, stop")
+    # the options are taken before the action too (`dmdsm stage --stage P where`), under
+    # their own names, since a subparser's defaults would overwrite them (cmd_stage merges)
+    p.add_argument("--stage", dest="stage_first", help=argparse.SUPPRESS)
+    p.add_argument("--config", dest="config_first", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--json", dest="json_first", action="store_true", help=argparse.SUPPRESS)
     psub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     staged = argparse.ArgumentParser(add_help=False, parents=[common])
     staged.add_argument("--stage", help=STAGE_HELP)
@@ -234,6 +239,9 @@ def cmd_stage(args: argparse.Namespace) -> int:
     """Home, move (checked against the envelope and keep-out first), where, stop."""
     from ..links.stage import StageClient
 
+    args.stage = args.stage or args.stage_first
+    args.config = args.config or args.config_first
+    args.json = args.json or args.json_first
     config = load_config(args.config)
     port = resolve_port("stage", args.stage, config)
     if args.action == "stop":

@@ -154,6 +154,19 @@ class SensorClient:
         self.reader.start()
         self._write(b"\x00")  # end any partial frame in the firmware's receiver
 
+    def __enter__(self) -> SensorClient:
+        return self
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
+        """Left by an error or Ctrl-C: disarm the board (unless the link itself failed), then
+        close the port, as StageClient quick-stops the stage."""
+        if exc_type is not None and not issubclass(exc_type, LinkError):
+            try:
+                self.disarm()
+            except LinkError:
+                pass
+        self.close()
+
     def close(self) -> None:
         """Stop the reader and close the port."""
         self._stop = True

@@ -31,6 +31,9 @@ class PlanError(ValueError):
     """A scan plan that cannot be run; str() names the key and what to change."""
 
 
+MAX_SETTLE_S = 60.0  # s of dwell per point a plan may ask for
+
+
 @dataclass
 class ScanPlan:
     """One scan: object, keep-out sizes (mm), raster (mm, deg), acquisition settings."""
@@ -68,6 +71,9 @@ class ScanPlan:
                 raise PlanError(f"{k} must be positive (got {v})")
         if self.height_mm < 0 or self.settle_s < 0:
             raise PlanError("height_mm and settle_s must not be negative")
+        if self.settle_s > MAX_SETTLE_S:  # G4 P<ms>: a huge number is not honoured
+            raise PlanError(f"settle_s = {self.settle_s:g} s is more than {MAX_SETTLE_S:g} s of "
+                            f"dwell per point: give the seconds the stage needs to stand still")
         if not self.levels_mm or not self.angles_deg:
             raise PlanError("levels_mm and angles_deg need at least one value each")
         if self.modality not in MODALITIES:

@@ -84,3 +84,17 @@ def test_clock_sync_recovers_the_tick_rate(emulator):
     rtts = [r for _, _, r in sc.clock_exchanges(16)]
     assert np.median(rtts) < 0.015, rtts
     sc.close()
+
+
+def test_leaving_the_client_by_an_error_disarms_the_board(emulator):
+    """Issue 30: SensorClient is a context manager, as StageClient is; an error inside it
+    leaves the board idle, not streaming."""
+    emu = emulator(speed=4.0)
+    spec = load_spec()
+    with pytest.raises(RuntimeError, match="mid-stream"):
+        with SensorClient(emu.sensor) as sc:
+            sc.stream_start()
+            raise RuntimeError("mid-stream")
+    with SensorClient(emu.sensor) as sc:
+        assert not sc.took_over  # idle already: the next client had nothing to disarm
+        assert sc.status()["state"] == spec.enums["state"]["idle"]

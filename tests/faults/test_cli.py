@@ -240,3 +240,14 @@ def test_a_config_file_not_in_utf8_is_named_in_one_line(tmp_path, capsys, encodi
     err = capsys.readouterr().err
     assert f"{cfg} {words}" in err and "Traceback" not in err, err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_stage_options_may_come_before_the_action(tmp_path, capsys):
+    """Issue 30: `dmdsm stage --stage P where` was "invalid choice: P"."""
+    missing = tmp_path / "nothing"
+    for argv in (["stage", "--stage", str(missing), "where"],
+                 ["stage", "--stage", str(missing), "--json", "stop"],
+                 ["stage", "where", "--stage", str(missing)]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{missing} does not exist" in err and "invalid choice" not in err, err

@@ -52,3 +52,12 @@ def not_utf8(path: Path, kind: str) -> str:
     else:
         seen = "not UTF-8 text"
     return f"{path} is {seen}: save the {kind} as UTF-8 (the editor's 'Save with encoding')"
+
+
+def shown(text: object) -> str:
+    """Text for a terminal: control and other unprintable characters as escapes (\\x1b,
+    \\u200b), so a name from a file can neither recolour the terminal nor ring its bell."""
+    s = str(text)
+    if s.isprintable():
+        return s
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in s)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import vector3
+from ..files import shown, vector3
 from ..scan.catalogue import CatalogueError, find_scan, list_scans, rebuild, verify
 from ..scan.points import MODS, scan_points, validate_block
 from ..scan.reconstruct import ply_text
@@ -94,7 +94,8 @@ def cmd_db(args: argparse.Namespace) -> int:
             elif not rows:
                 print(f"{args.db}: no scans")
             for r in ([] if args.json else rows):
-                print(f"{r['scan_id']:<32} {r['object_id']:<18} {r['material']:<10} "
+                print(f"{shown(r['scan_id']):<32} {shown(r['object_id']):<18} "
+                      f"{shown(r['material']):<10} "
                       f"{r['status']:<11} {r['n_points']:>6} pts  {r['started']}  "
                       f"{r['check']}")
             return 0
@@ -117,7 +118,8 @@ def cmd_db(args: argparse.Namespace) -> int:
             print(json.dumps(s))
         else:
             for k, v in s.items():
-                print(f"{k:>12}: {v}" if k != "plan" else f"{k:>12}:\n{v}")
+                print(f"{k:>12}: {shown(v)}" if k != "plan" else
+                      f"{k:>12}:\n" + "\n".join(shown(x) for x in str(v).splitlines()))
         return 0
     if not (args.csv or args.ply):
         raise CliError("db export needs --csv FILE and/or --ply FILE")

@@ -19,6 +19,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import MachineLimits
 
+from ..files import shown
 from ..links.safety import KeepOut, UnsafeMove, check_move
 from ..ranging.calibrate import RangingSetup
 from ..ranging.point import PointRanger
@@ -63,6 +64,11 @@ class ScanPlan:
         if not self.object_id or any(c in self.object_id for c in "/\\ \t"):
             raise PlanError("sample.object_id must be a non-empty name without spaces or "
                             "slashes")
+        for key in ("object_id", "material"):
+            value = getattr(self, key)
+            if not value.isprintable():
+                raise PlanError(f"sample.{key} = {shown(value)} holds a control character: "
+                                f"give printable text")
         pos = {"radius_mm": self.radius_mm, "step_mm": self.step_mm,
                "half_width_mm": self.half_width_mm, "average": self.average,
                "samples": self.samples, "feed_mm_min": self.feed_mm_min}

@@ -5,6 +5,8 @@ given a file where a port belongs."""
 import argparse
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from dmdsm.host.entry import build_parser, main  # every command, `dmdsm demo` too
 
@@ -251,3 +253,42 @@ def test_stage_options_may_come_before_the_action(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert f"{missing} does not exist" in err and "invalid choice" not in err, err
+
+
+HOSTILE = "al\x1b[31mRED\x07\x00\u200b"
+
+
+def test_names_from_a_database_are_escaped_for_the_terminal(tmp_path, capsys):
+    """Issue 30: a material with an escape sequence and a bell, stored by another program or
+    an older version, recoloured the terminal and rang its bell in `dmdsm db list`."""
+    from dmdsm.host.scan.catalogue import COLUMNS, connect
+
+    con = connect(tmp_path / "db", create=True)
+    row = {c: "" for c in COLUMNS} | {"scan_id": "cup-1", "object_id": "cup" + HOSTILE,
+                                      "material": HOSTILE, "status": "complete",
+                                      "path": "scans/cup-1.h5", "n_points": 3, "n_planned": 3}
+    with con:
+        con.execute(f"INSERT INTO scans ({', '.join(COLUMNS)}) VALUES "
+                    f"({', '.join('?' * len(COLUMNS))})", [row[c] for c in COLUMNS])
+    con.close()
+    assert main(["db", "list", "--db", str(tmp_path / "db")]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "\x07" not in out and "\x00" not in out, repr(out)
+    assert "al\\x1b[31mRED\\x07\\x00\\u200b" in out
+
+
+def test_control_characters_in_a_plans_names_are_refused_by_name():
+    from dmdsm.host.scan.plan import PlanError, ScanPlan
+    for key in ("object_id", "material"):
+        kw = {"object_id": "cup", key: ("cup" if key == "object_id" else "") + HOSTILE}
+        with pytest.raises(PlanError, match=f"sample.{key} = .* holds a control character"):
+            ScanPlan(**kw).validate()
+
+
+@given(st.text())
+def test_shown_text_is_printable_and_printable_text_is_unchanged(text):
+    from dmdsm.host.files import shown
+    s = shown(text)
+    assert s.isprintable()
+    if text.isprintable():
+        assert s == text

@@ -125,3 +125,18 @@ def test_a_csv_with_a_byte_order_mark_reads_and_utf16_is_named(tmp_path):
     wide.write_bytes(text.encode("utf-16"))
     with pytest.raises(CalibrationError, match="is UTF-16 text: save the CSV as UTF-8"):
         read_raw(wide)
+
+
+def test_a_value_that_is_not_a_number_is_named_with_its_row(tmp_path):
+    """Issue 30: "column sx_mm has a value that is not a number" gave no row."""
+    path = tmp_path / "rig.csv"
+    append_rows(path, example_rows("tip", 3))
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[2].split(",")
+    cells[header.index("sx_mm")] = "12,5".replace(",", ";")
+    lines[2] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CalibrationError, match=r"row 2 \(line 3\): column sx_mm has '12;5', "
+                                               r"which is not a number"):
+        read_raw(path)

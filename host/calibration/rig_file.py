@@ -8,7 +8,7 @@ from types import TracebackType
 
 import numpy as np
 
-from ..files import not_utf8
+from ..files import not_utf8, shown
 from .solver import CalibrationError
 
 COLUMNS = ("step", "frame", "line", "theta_deg", "sx_mm", "sy_mm", "sz_mm", "d_mm",
@@ -87,12 +87,17 @@ def read_raw(path: Path) -> dict[str, np.ndarray]:
         if c in TEXT:
             out[c] = np.array([str(v).strip().lower() for v in vals])
             continue
-        try:
-            out[c] = np.array([float(v) if str(v).strip() not in ("", "nan", "NaN") else np.nan
-                               for v in vals], float)
-        except ValueError:
-            raise CalibrationError(f"{path}: column {c} has a value that is not a "
-                                   f"number") from None
+        column = np.full(len(vals), np.nan)
+        for i, v in enumerate(vals):
+            if str(v).strip() in ("", "nan", "NaN"):
+                continue
+            try:
+                column[i] = float(v)
+            except ValueError:
+                raise CalibrationError(
+                    f"{path}: row {i + 1} (line {i + 2}): column {c} has {shown(str(v)[:40])!r}, "
+                    f"which is not a number; fix or delete the row") from None
+        out[c] = column
     _check_rows(path, out)
     return out
 

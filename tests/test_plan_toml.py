@@ -63,3 +63,16 @@ def test_a_settle_time_the_stage_would_not_honour_is_refused():
         with pytest.raises(PlanError, match="s of dwell per point"):
             ScanPlan(object_id="cup", settle_s=settle).validate()
     ScanPlan(object_id="cup", settle_s=60.0).validate()
+
+
+def test_a_size_larger_than_the_machine_is_refused_in_one_short_line():
+    """Issue 30: `radius_mm = 1e308` was refused with a 400-character line whose cut removed
+    what to fix."""
+    import pytest
+
+    from dmdsm.host.scan.plan import PlanError
+    for key in ("radius_mm", "height_mm", "half_width_mm", "standoff_mm"):
+        with pytest.raises(PlanError, match=f"{key} = 1e\\+308 mm is more than the machine's "
+                                            f"longest travel") as e:
+            ScanPlan(object_id="cup", **{key: 1e308}).validate()
+        assert len(str(e.value)) < 150

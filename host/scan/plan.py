@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import math
 import tomllib
+import unicodedata
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -66,7 +67,7 @@ class ScanPlan:
                             "slashes")
         for key in ("object_id", "material"):
             value = getattr(self, key)
-            if not value.isprintable():
+            if any(unicodedata.category(c) == "Cc" for c in value):  # ESC, BEL, NUL, DEL
                 raise PlanError(f"sample.{key} = {shown(value)} holds a control character: "
                                 f"give printable text")
         pos = {"radius_mm": self.radius_mm, "step_mm": self.step_mm,
@@ -102,7 +103,14 @@ class ScanPlan:
                                 f"average or lower step_mm")
         from dmdsm.marlin_patch import load_machine as _machine
 
-        fastest = 60.0 * max(_machine().max_feedrate)
+        m = _machine()
+        reach = max(hi - lo for lo, hi in zip(m.min_pos[:3], m.max_pos[:3]))
+        for key in ("radius_mm", "height_mm", "half_width_mm", "standoff_mm"):
+            if getattr(self, key) > reach:  # (a huge number also made a 400-character line)
+                raise PlanError(f"{key} = {getattr(self, key):.6g} mm is more than the "
+                                f"machine's longest travel ({reach:g} mm): give the object's "
+                                f"size in mm")
+        fastest = 60.0 * max(m.max_feedrate)
         if not 0 < self.feed_mm_min <= fastest:
             raise PlanError(f"feed_mm_min must be above 0 and at most the machine's fastest "
                             f"axis, {fastest:g} mm/min (got {self.feed_mm_min:g})")
@@ -285,5 +293,5 @@ def check_path(targets: list[np.ndarray], labels: list[str], start: np.ndarray |
                 check_move(here, t, limits, zone)
             except UnsafeMove as e:
                 raise UnsafeMove(f"scan plan refused before moving: {label} "
-                                 f"(X{t[0]:.1f} Y{t[1]:.1f} Z{t[2]:.1f}): {e}") from None
+                                 f"(X{t[0]:.6g} Y{t[1]:.6g} Z{t[2]:.6g}): {e}") from None
         here = t

@@ -23,6 +23,8 @@ def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialB
         kind = "a folder" if os.path.isdir(name) else "a plain file"
         raise LinkError(f"{name} is {kind}, not a serial port: give the board's port "
                         f"(e.g. /dev/ttyACM0; `dmdsm ports` lists them)")
+    if "://" in name:
+        _check_url(name)
     try:
         if "://" in name:
             return serial.serial_for_url(name, baudrate=baudrate, timeout=timeout)
@@ -44,3 +46,21 @@ def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialB
             raise LinkError(f"nothing listens at {name}: is the emulator or QEMU "
                             f"running?") from None
         raise LinkError(f"cannot open {name}: {e}") from None
+
+
+URL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "hwgrep", "alt")  # pySerial's, as used here
+
+
+def _check_url(name: str) -> None:
+    """A port URL pySerial can open: a known scheme, and HOST:PORT for the network ones
+    (pySerial says "'<=' not supported" for a missing port, and raises on a scheme)."""
+    scheme, _, rest = name.partition("://")
+    if scheme not in URL_SCHEMES:
+        raise LinkError(f"{name}: unknown port URL scheme {scheme!r}: give a device path "
+                        f"(/dev/ttyACM0) or socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
+    if scheme in ("socket", "rfc2217"):
+        hostport = rest.split("?", 1)[0].split("/", 1)[0]
+        host, _, port = hostport.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise LinkError(f"{name}: give the host and the TCP port, e.g. "
+                            f"{scheme}://localhost:5000")

@@ -292,3 +292,17 @@ def test_shown_text_is_printable_and_printable_text_is_unchanged(text):
     assert s.isprintable()
     if text.isprintable():
         assert s == text
+
+
+@pytest.mark.parametrize("url, words", [
+    ("rfc2217://nohost", "give the host and the TCP port, e.g. rfc2217://localhost:5000"),
+    ("socket://localhost", "give the host and the TCP port"),
+    ("socket://localhost:99999", "give the host and the TCP port"),
+    ("foo://bar", "unknown port URL scheme 'foo'"),
+])
+def test_a_port_url_pyserial_cannot_open_is_one_line_saying_what_to_give(capsys, url, words):
+    """Issue 30: an rfc2217:// port without a TCP port showed pySerial's "'<=' not supported",
+    and an unknown scheme was a traceback."""
+    assert main(["stage", "where", "--stage", url]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err

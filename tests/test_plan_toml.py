@@ -76,3 +76,24 @@ def test_a_size_larger_than_the_machine_is_refused_in_one_short_line():
                                             f"longest travel") as e:
             ScanPlan(object_id="cup", **{key: 1e308}).validate()
         assert len(str(e.value)) < 150
+
+
+def test_a_value_of_the_wrong_kind_in_a_plan_file_is_named(tmp_path):
+    """Issue 30: `step_mm = "2"` was a TypeError; `average = 16.5` passed the check and failed
+    only once the boards were open."""
+    import pytest
+
+    from dmdsm.host.scan.plan import PlanError
+    base = '[sample]\nobject_id = "cup"\n[scan]\nlevels_mm = [20.0]\n'
+    for line, words in (('step_mm = "2"', "step_mm must be a number .got '2'.: write it "
+                                           "without quotes"),
+                        ("average = 16.5", "average must be a whole number .got 16.5."),
+                        ("samples = true", "samples must be a whole number"),
+                        ("material = 7", "material must be text in quotes")):
+        path = tmp_path / "plan.toml"
+        path.write_text(base + line + "\n")
+        with pytest.raises(PlanError, match=words):
+            load_plan(path)
+    path.write_text(base + "average = 16.0\nstep_mm = 2\n")
+    plan = load_plan(path)
+    assert plan.average == 16 and isinstance(plan.average, int) and plan.step_mm == 2

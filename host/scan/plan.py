@@ -215,6 +215,18 @@ def load_plan(path: Path, **overrides: object) -> ScanPlan:
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
             raise PlanError(f"{path}: [scan] {key} must be a list of numbers in {unit}, "
                             f"e.g. {key} = {example} (got {value!r:.40})")
+    for key, value in flat.items():  # the kind each key takes, named before any board opens
+        kind = ScanPlan.__dataclass_fields__[key].type
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if kind == "float" and not number:
+            raise PlanError(f"{path}: {key} must be a number (got {value!r:.40}): write it "
+                            f"without quotes, e.g. {key} = 2.0")
+        if kind == "int" and not (number and float(value).is_integer()):
+            raise PlanError(f"{path}: {key} must be a whole number (got {value!r:.40})")
+        if kind == "str" and not isinstance(value, str):
+            raise PlanError(f"{path}: {key} must be text in quotes (got {value!r:.40})")
+        if kind == "int":
+            flat[key] = int(value)
     try:
         plan = ScanPlan(**flat)
         plan.levels_mm = [float(x) for x in plan.levels_mm]

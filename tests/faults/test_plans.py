@@ -23,7 +23,8 @@ def plan_text(**scan: str) -> str:
 
 
 @pytest.mark.parametrize("change, words", [
-    ({"half_width_mm": "1e9"}, "points (at most"),
+    ({"half_width_mm": "1e9"}, "more than the machine's longest travel"),
+    ({"half_width_mm": "400", "step_mm": "0.001"}, "points (at most"),
     ({"step_mm": "0.0001", "half_width_mm": "100.0"}, "points (at most"),
     ({"samples": "99999999"}, "samples = 99999999 is outside"),
     ({"average": "70000"}, "average = 70000 is outside"),
@@ -46,7 +47,7 @@ def test_a_bad_plan_is_one_line_at_once(tmp_path, change, words):
 
 def test_the_scan_command_refuses_a_huge_plan_quickly_and_in_little_memory(tmp_path):
     path = tmp_path / "plan.toml"
-    path.write_text(plan_text(half_width_mm="1e9", step_mm="0.001"))
+    path.write_text(plan_text(half_width_mm="400", step_mm="0.0001"))  # 8e6 points
     code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 31, 1 << 31));"
             "from dmdsm.host.commands.cli import main; sys.exit(main(sys.argv[1:]))")
     t0 = time.perf_counter()

@@ -231,12 +231,7 @@ class StageClient:
         """Read and handle lines until done() or the deadline; busy lines extend it."""
         deadline = until
         while not done():
-            if self._stop_request.is_set() and threading.get_ident() != self._stopper:
-                raise StageStopped(f"the stage on {self.port_name} was stopped from another "
-                                   f"terminal")
-            if self.halted:
-                raise StageError("the stage firmware halted (kill() called): press the "
-                                 "board's reset button or power-cycle it, then home again")
+            self._check_usable()
             now = time.monotonic()
             if now > deadline:
                 raise TimeoutError
@@ -335,8 +330,8 @@ class StageClient:
             raise StageStopped(f"the stage on {self.port_name} was stopped from another "
                                f"terminal: nothing more is sent on this connection")
         if self.halted:
-            raise StageError("the stage firmware is halted (M112): press the board's reset "
-                             "button or power-cycle it, then home again")
+            raise StageError("the stage firmware is halted (M112 or kill()): press the "
+                             "board's reset button or power-cycle it, then home again")
 
     def send(self, cmd: str, timeout_s: float | None = None, wait: bool = True) -> list[str]:
         """Send one command (its `;` comment dropped); with wait, return the lines it printed

@@ -112,8 +112,7 @@ class StageClient:
         self._connecting = False
         self.server: stage_control.StopServer | None = None
         if stop_first:  # M410 acts on receipt (emergency parser): before anything can queue
-            self.plain_oks_expected += 1
-            self._write("M410\n")
+            self._quick_stop()
         try:
             self._reset_line_numbers()
         except BaseException:
@@ -438,10 +437,15 @@ class StageClient:
         """Quick-stop (M410, emergency parser) and return the position once the stage is
         proven standing. Lines Marlin had not read yet run after its clean-up, so each one
         acknowledged is answered with another M410; 0 moves run after this returns."""
-        self.plain_oks_expected += 1
-        self._write("M410\n")
+        self._quick_stop()
         with self._io:
             return self._settle_stop()
+
+    def _quick_stop(self) -> None:
+        """Write an unnumbered M410: the emergency parser acts on its bytes, and the line
+        itself later gets a plain `ok`."""
+        self.plain_oks_expected += 1
+        self._write("M410\n")
 
     def _settle_stop(self) -> dict[str, float]:
         limit = time.monotonic() + (len(self.unacked) + 3) * (QUICK_STOP_CLEAN_S +
@@ -454,8 +458,7 @@ class StageClient:
                 raise StageError(f"the stage on {self.port_name} did not acknowledge the "
                                  f"lines sent before the stop: it may still move; press "
                                  f"its reset button") from None
-            self.plain_oks_expected += 1
-            self._write("M410\n")  # a line just run: drop its move before it steps
+            self._quick_stop()  # a line just run: drop its move before it steps
         for _ in range(int(30 / STILL_S)):  # proof: nothing planned, counts unchanged
             pos, moving = self.live()
             if not moving:
@@ -467,8 +470,7 @@ class StageClient:
         """A stop asked from another terminal (stage_control): quick-stop at once, end the
         owner's operation on the stage, prove standing, and say where."""
         self._stop_request.set()
-        self.plain_oks_expected += 1
-        self._write("M410\n")
+        self._quick_stop()
         with self._io:  # the owner's pump raises StageStopped and lets go
             self._stopper = threading.get_ident()
             try:

@@ -14,7 +14,6 @@ import hashlib
 import io
 import json
 import math
-import os
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import one_line
+from ..files import atomic_output, one_line
 from ..version import __version__
 from .materials import MODS, PRE, ClassifyError, Dataset, FusedModel, make_classifier
 
@@ -105,8 +104,8 @@ def _digest(arrays: dict[str, np.ndarray]) -> str:
 
 
 def save_model(model: FusedModel, ds: Dataset, path: Path) -> None:
-    """Write the model and the provenance load_model() checks (atomically: a temporary file
-    renamed over `path`)."""
+    """Write the model and the provenance load_model() checks (atomically, files.atomic_output:
+    a temporary file renamed over `path`; a device, FIFO or folder is refused)."""
     import aeon
 
     a: dict[str, np.ndarray] = {"classes": model.classes.astype(str), "prior": model.prior,
@@ -129,13 +128,8 @@ def save_model(model: FusedModel, ds: Dataset, path: Path) -> None:
             "created": datetime.datetime.now().isoformat(timespec="seconds"),
             "sha256": _digest(a)}
     a["provenance"] = np.frombuffer(json.dumps(prov).encode(), np.uint8)
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as f:
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **a)
-        f.flush()
-        os.fsync(f.fileno())
-    tmp.replace(path)
 
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:

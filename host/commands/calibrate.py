@@ -12,6 +12,7 @@ from ..calibration.center_points import center_points
 from ..calibration.result import result_dict, write_result
 from ..calibration.rig_file import RawWriter, drop_step, read_raw, steps_in
 from ..calibration.solver import CalibrationError, solve
+from ..files import atomic_output
 from .options import add_ports
 
 
@@ -155,7 +156,7 @@ def _steps_in(path: Path) -> set[str]:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Scan a step, or solve from a data file; save the TOML, print Table I with +- std."""
-    from .errors import CliError, check_output, keep_previous
+    from .errors import CliError, check_output
 
     if args.step != "tip":
         check_output(args.output)  # before the edge step measures anything
@@ -175,8 +176,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         r = solve(data)
     except CalibrationError as e:
         raise CliError(str(e)) from None
-    previous = keep_previous(args.output)
-    write_result(r, args.output, str(source))
+    out = atomic_output(args.output, keep_previous=True)  # the earlier one is moved aside
+    with out as tmp:
+        write_result(r, tmp, str(source))
+    previous = out.previous
     kept = f" (the earlier one is kept as {previous})" if previous else ""
     if args.json:
         print(json.dumps({**result_dict(r), "file": str(args.output),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from ..classify.materials import (
 )
 from ..classify.model_file import check_provenance, read_model, save_model
 from ..classify.predict import predict_scan, vote
+from ..files import atomic_output
 from ..links.sensor import config_range
 from ..report.plots import confusion_figure
 from .errors import check_output
@@ -137,11 +139,28 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _out_folder(out: Path, make: bool = False) -> None:
+    """Refuse an --out that is not a folder (a file, a device, ...) before minutes of
+    evaluation rather than after them; with make, create it."""
+    from .errors import CliError
+
+    if os.path.lexists(out) and not out.is_dir():
+        raise CliError(f"{out} is not a folder: give a folder for --out (the confusion "
+                       f"matrices are written into it)")
+    try:
+        if make:
+            out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CliError(f"cannot make the folder {out}: {e.strerror}; give another --out") \
+            from None
+
+
 def _evaluate(args: argparse.Namespace) -> int:
+    _out_folder(args.out)
     ds = assemble(_db_paths(args.db), args.window)
     mods = MODALITY[args.modality]
     classes = np.unique(ds.y)
-    args.out.mkdir(parents=True, exist_ok=True)
+    _out_folder(args.out, make=True)
     res: dict = {"points": len(ds), "objects": len(np.unique(ds.groups)),
                  "modality": args.modality, "classifiers": {}}
     tables = []
@@ -156,12 +175,13 @@ def _evaluate(args: argparse.Namespace) -> int:
             cm = run()
             r[proto] = per_class_accuracy(cm, classes)
             tag = f"{name}_{proto}" + ("" if args.modality == "both" else f"_{args.modality}")
-            np.savetxt(args.out / f"confusion_{tag}.csv", cm, fmt="%d", delimiter=",",
-                       header=",".join(classes))
+            with atomic_output(args.out / f"confusion_{tag}.csv", flag="--out") as tmp:
+                np.savetxt(tmp, cm, fmt="%d", delimiter=",", header=",".join(classes))
             label = (f"{trials} random 3:1 splits" if proto == "random"
                      else "leave one object out")
-            confusion_figure(cm, classes, args.out / f"confusion_{tag}.png",
-                             f"{name} ({args.modality}): {label} (simulated data)")
+            with atomic_output(args.out / f"confusion_{tag}.png", flag="--out") as tmp:
+                confusion_figure(cm, classes, tmp,
+                                 f"{name} ({args.modality}): {label} (simulated data)")
             tables.append(f"{name} ({args.modality}), {label}, % of each true material:\n"
                           + confusion_table(cm, classes))
         res["classifiers"][name] = {**r, "trials": trials}

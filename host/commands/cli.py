@@ -11,7 +11,7 @@ from dmdsm.protocol import tool as protocol_tool
 
 from ..calibration.solver import CalibrationError
 from ..classify.materials import ClassifyError
-from ..files import one_line
+from ..files import OutputError, one_line
 from ..links.config import ConfigError
 from ..links.safety import UnsafeMove
 from ..links.transport import LinkError
@@ -67,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
         return args.func(args)
     except (CliError, protocol_tool.ToolError, flash.FlashError, LinkError, ConfigError,
             UnsafeMove, CalibrationError, CatalogueError, PlanError, ScanFileError,
-            ClassifyError) as e:
+            ClassifyError, OutputError) as e:
         print(f"dmdsm: error: {one_line(str(e), 400)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:

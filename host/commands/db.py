@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import shown, vector3
+from ..files import atomic_output, shown, vector3
 from ..scan.catalogue import CatalogueError, find_scan, list_scans, rebuild, verify
 from ..scan.points import MODS, scan_points, validate_block
 from ..scan.reconstruct import ply_text
@@ -123,14 +123,16 @@ def cmd_db(args: argparse.Namespace) -> int:
         return 0
     if not (args.csv or args.ply):
         raise CliError("db export needs --csv FILE and/or --ply FILE")
-    for out in (args.csv, args.ply):
+    for out, flag in ((args.csv, "--csv"), (args.ply, "--ply")):
         if out:
-            check_output(out)
+            check_output(out, flag=flag)
     pts = scan_points(scan)
     if args.csv:
-        write_points_csv(args.csv, pts)
+        with atomic_output(args.csv, flag="--csv") as tmp:
+            write_points_csv(tmp, pts)
     if args.ply:
-        write_ply(args.ply, pts)
+        with atomic_output(args.ply, flag="--ply") as tmp:
+            write_ply(tmp, pts)
     n = sum(len(pts[m]["P"]) for m in MODS)
     print(json.dumps({"scan_id": args.scan_id, "points": n, "csv": str(args.csv or ""),
                       "ply": str(args.ply or "")}) if args.json else
@@ -160,13 +162,28 @@ def write_ply(path: Path, pts: dict) -> None:
     Path(path).write_text(ply_text(P, mod, lvl))
 
 
+def _check_figure_type(path: Path) -> None:
+    """Refuse a --plot name whose suffix matplotlib cannot write, before the work (it chooses
+    the format from the suffix; none is PNG)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from .errors import CliError
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix and path.suffix[1:].lower() not in kinds:
+        raise CliError(f"--plot {path}: a figure cannot be written as {path.suffix}; give a "
+                       f".png, .pdf or .svg file")
+
+
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     """Object-frame points of a scan; with --truth the block validation per modality."""
     from .errors import CliError, check_output
 
-    for out in (args.ply, args.plot, getattr(args, "csv", None)):
+    for out, flag in ((args.ply, "--ply"), (args.plot, "--plot")):
         if out:
-            check_output(out)
+            check_output(out, flag=flag)
+    if args.plot:
+        _check_figure_type(args.plot)
     try:
         scan = read_scan(args.scan, waveforms=False)
     except ScanFileError as e:
@@ -179,12 +196,14 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         fits = validate_block(pts, size)
         result["validation"] = fits
     if args.ply:
-        write_ply(args.ply, pts)
+        with atomic_output(args.ply, flag="--ply") as tmp:
+            write_ply(tmp, pts)
         result["ply"] = str(args.ply)
     if args.plot:
         from ..report.plots import contour_figure
-        contour_figure(pts, args.plot, size if args.truth else None, fits,
-                       title=str(scan.sample.get("name", "")))
+        with atomic_output(args.plot, flag="--plot") as tmp:
+            contour_figure(pts, tmp, size if args.truth else None, fits,
+                           title=str(scan.sample.get("name", "")))
         result["plot"] = str(args.plot)
     if args.json:
         print(json.dumps(result))

@@ -13,6 +13,7 @@ import numpy as np
 
 from dmdsm.marlin_patch import load_machine
 
+from ..files import atomic_output
 from ..links.config import load_config, resolve_port
 from ..links.link_rate import link_rate
 from ..links.sensor import config_range
@@ -148,13 +149,13 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def write_shots(path: Path, shots: object, identity: dict, port: str,
-                status: str = "complete") -> None:
+                status: str = "complete", force: bool = True) -> None:
     """HDF5, NeXus-like: /entry/instrument/sensor, /entry/data/waveforms (n, n_samples);
-    status "interrupted" keeps only the shots that arrived."""
+    status "interrupted" keeps only the shots that arrived. Atomic (files.atomic_output): a
+    failed write leaves the earlier file, or nothing."""
     import h5py
 
-    tmp = path.with_suffix(path.suffix + ".part")
-    with h5py.File(tmp, "w") as f:
+    with atomic_output(path, force=force) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update(format_name="dmdsm-shots", format_version="1", default="entry")
         e = f.create_group("entry")
         e.attrs.update(NX_class="NXentry", default="data", created=time.strftime("%FT%T%z"),
@@ -176,7 +177,6 @@ def write_shots(path: Path, shots: object, identity: dict, port: str,
                        integrity_faults=getattr(shots, "integrity_faults", 0),
                        link_rejected=getattr(shots, "link_rejected", 0),
                        lost=len(shots.lost))
-    tmp.replace(path)
 
 
 def cmd_acquire(args: argparse.Namespace) -> int:
@@ -205,15 +205,16 @@ def cmd_acquire(args: argparse.Namespace) -> int:
             except AcquisitionInterrupted as e:  # the board is disarmed: keep what arrived
                 got = int(e.shots.received.sum())
                 write_shots(args.output, e.shots, dict(sc.identity.fields), sc.port_name,
-                            status="interrupted")
+                            status="interrupted", force=args.force)
                 print(f"\ndmdsm: acquisition stopped after {got} of {args.shots} shots; they "
                       f"are saved in {args.output}", file=sys.stderr)
                 raise
             except AcquisitionLost as e:  # the cable, not the user: keep what arrived too
                 write_shots(args.output, e.shots, dict(sc.identity.fields), sc.port_name,
-                            status="interrupted")
+                            status="interrupted", force=args.force)
                 raise CliError(f"{e}; they are saved in {args.output}") from None
-        write_shots(args.output, shots, dict(sc.identity.fields), sc.port_name)
+        write_shots(args.output, shots, dict(sc.identity.fields), sc.port_name,
+                    force=args.force)
     finally:
         sc.close()
     got = int(shots.received.sum())

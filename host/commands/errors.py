@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import os
-import time
 from pathlib import Path
+
+from .. import files
 
 
 class Terminated(KeyboardInterrupt):
@@ -21,43 +21,14 @@ class CliError(Exception):
     """An error shown to the user as one line, without a traceback."""
 
 
-def check_output(path: Path, keep_existing: bool = False) -> None:
-    """Refuse an output file that cannot be written (a missing or unwritable folder, a
-    folder as the file; an existing file if keep_existing), before anything is measured."""
-    path = Path(path)
-    kind = _not_a_regular_file(path)
-    if kind:
-        raise CliError(f"{path} is {kind}, not a regular file: name a new file (or a regular "
-                       f"file, with --force where the command has it)")
-    if keep_existing and path.exists() and not path.is_dir():
-        raise CliError(f"{path} exists and holds earlier data: name another file, or pass "
-                       f"--force to overwrite it")
-    folder = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise CliError(f"{path} is a folder: name a file to write (e.g. {path / 'shots.h5'})")
-    if not folder.is_dir():
-        raise CliError(f"cannot write {path}: the folder {folder} does not exist; create it "
-                       f"or name another file")
-    if not os.access(folder, os.W_OK):
-        raise CliError(f"cannot write {path}: no permission to write in {folder}")
-
-
-def _not_a_regular_file(path: Path) -> str:
-    """What an existing output path is if writing it would replace something that is not a
-    plain file (a device node, a FIFO, a socket, a symbolic link); "" otherwise."""
-    import stat
-
+def check_output(path: Path, keep_existing: bool = False, flag: str = "-o") -> None:
+    """Refuse, before anything is measured, an output that cannot be written: a device, a
+    FIFO, a socket, a folder, a link to one of them or to nothing, a missing or unwritable
+    folder; an existing file if keep_existing (files.check_output, as a CliError)."""
     try:
-        mode = os.lstat(path).st_mode
-    except OSError:
-        return ""  # a new path (or one we cannot see: the folder checks say so)
-    if stat.S_ISLNK(mode):
-        return f"a symbolic link (to {os.readlink(path)})"
-    for test, kind in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return kind
-    return ""
+        files.check_output(path, force=not keep_existing, flag=flag)
+    except files.OutputError as e:
+        raise CliError(str(e)) from None
 
 
 def check_setting(flag: str, field: str, value: int | None) -> None:
@@ -71,18 +42,4 @@ def check_setting(flag: str, field: str, value: int | None) -> None:
         raise CliError(f"{flag} {value} is outside {lo}..{hi}")
 
 
-def keep_previous(path: Path) -> Path | None:
-    """Before a calibration is written over an earlier one, move the earlier one aside to
-    NAME.YYYYmmdd-HHMMSS.SUFFIX (as Klipper keeps printer.cfg on SAVE_CONFIG); its new name,
-    or None if there was none."""
-    path = Path(path)
-    if not path.is_file():
-        return None
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(path.stat().st_mtime))
-    backup = path.with_name(f"{path.stem}.{stamp}{path.suffix}")
-    k = 1
-    while backup.exists():  # two in the same second: never over another backup
-        backup = path.with_name(f"{path.stem}.{stamp}-{k}{path.suffix}")
-        k += 1
-    path.replace(backup)
-    return backup
+keep_previous = files.keep_previous  # calibrate and calibrate-range: an earlier result is kept

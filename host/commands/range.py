@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import atomic_output
 from ..ranging.calibrate import MODALITIES, RangingSetup, distance_std_mm, range_waveforms
 from ..ranging.matched_filter import speed_of_sound_mm_s
 from ..ranging.procedure import calibrate_range
-from .errors import check_output, keep_previous
+from .errors import check_output
 from .options import add_ports
 
 
@@ -72,8 +73,10 @@ def cmd_calibrate_range(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     finally:
         sc.close()
-    previous = keep_previous(args.output)
-    setup.save(args.output)
+    out = atomic_output(args.output, keep_previous=True)  # the earlier one is moved aside
+    with out as tmp:
+        setup.save(tmp)
+    previous = out.previous
     if args.json:
         print(json.dumps({"file": str(args.output), **report,
                           "previous": str(previous) if previous else None}))

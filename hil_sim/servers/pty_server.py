@@ -10,6 +10,8 @@ import time
 import tty
 from pathlib import Path
 
+from dmdsm.host.links.board_clock import ClockPublisher
+
 from ..physics.objects import SCENES
 from .runner import Simulation
 
@@ -24,6 +26,7 @@ class Port:
         self.link = link_dir / name if link_dir else None
         self.pending = bytearray()
         self.down_until = 0.0
+        self.clock: ClockPublisher | None = None
         self.open()
 
     def open(self) -> None:
@@ -32,6 +35,8 @@ class Port:
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
+        # the board's time for the host's timeouts: this board runs as fast as the CPU lets it
+        self.clock = ClockPublisher(self.path)
         if self.link is not None:
             tmp = self.link.with_suffix(".tmp")
             tmp.unlink(missing_ok=True)
@@ -46,6 +51,9 @@ class Port:
             except OSError:
                 pass
         self.master = self.slave = -1
+        if self.clock is not None:
+            self.clock.close()
+            self.clock = None
 
     @property
     def name_for_host(self) -> str:
@@ -106,6 +114,15 @@ class PtyServer:
 
     def serve_forever(self) -> None:
         """Pump bytes between the ptys and the simulation in (scaled) real time."""
+        try:
+            self._serve()
+        finally:
+            for p in self.ports.values():
+                if p.clock is not None:
+                    p.clock.close()
+                    p.clock = None
+
+    def _serve(self) -> None:
         wall0, sim0 = time.monotonic(), self.sim.t
         while not self._stop.is_set():
             self._watch_scene()
@@ -133,6 +150,8 @@ class PtyServer:
                         self.sim.advance(dt)
                     for p in self.ports.values():
                         self._pump_out(p, dt)
+                        if p.clock is not None:
+                            p.clock.publish(self.sim.t)
                     left -= dt
                     if left <= 1e-9:
                         break

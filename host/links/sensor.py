@@ -22,6 +22,7 @@ import serial
 from dmdsm.protocol import FrameDecoder, Message, encode_frame, load_spec
 from dmdsm.protocol.spec import SAMPLE_DTYPES
 
+from .board_clock import BoardClock, Deadline
 from .shots import Shots
 from .transport import LinkError, open_port
 
@@ -31,6 +32,7 @@ SPEC = load_spec()
 ERRORS = {v: k for k, v in SPEC.enums["error"].items()}
 BOOT_FAILURES = ("clock_failure", "power_failure", "adc_failure")  # arm NAKs: docs/firmware.md
 CONFIG_FIELDS = [f.name for f in SPEC.by_name["set_config"].fields]
+QUIET_S = 0.5  # no shot for this long (board time): ask whether the board has finished
 
 
 def config_range(name: str) -> tuple[int, int]:
@@ -148,6 +150,7 @@ class SensorClient:
     # ------------------------------------------------------------------ link
     def _open(self) -> None:
         self.ser = open_port(self.port_name, self.baudrate, timeout=0.02)
+        self.board_clock = BoardClock(self.port_name)  # an emulated board's own time, if published
         self.link_error = None
         self._stop = False
         self.reader = threading.Thread(target=self._read_loop, daemon=True)
@@ -269,10 +272,10 @@ class SensorClient:
         retry = encode_frame(Message(name, seq=seq, flags=SPEC.flags["retransmit"], **fields))
         for attempt in range(self.retries + 1):
             self._write(frame if attempt == 0 else retry)
-            end = time.monotonic() + self.timeout_s
+            deadline = Deadline(self.timeout_s, self.board_clock)
             with self.cond:
                 while seq not in self.responses and not self.link_error:
-                    left = end - time.monotonic()
+                    left = deadline.left()
                     if left <= 0:
                         break
                     self.cond.wait(left)
@@ -400,9 +403,9 @@ class SensorClient:
         try:
             self.disarm()
             idle = SPEC.enums["state"]["idle"]
-            end = time.monotonic() + 2.0
+            deadline = Deadline(2.0, self.board_clock)
             after = self.status()  # idle: every waveform's bytes went out before this reply
-            while after["state"] != idle and time.monotonic() < end:
+            while after["state"] != idle and not deadline.passed():
                 time.sleep(0.005)
                 after = self.status()
         finally:
@@ -416,15 +419,15 @@ class SensorClient:
     def _collect(self, shots: Shots, n: int, cfg: dict, timeout_s: float | None,
                  progress: object | None) -> None:
         """Wait for the shots; stop early once the device is idle and the link is quiet."""
-        quiet_since = time.monotonic()
+        quiet = Deadline(QUIET_S, self.board_clock)
         last_count = 0
-        deadline = time.monotonic() + (timeout_s or 30.0 + n * 0.05)
+        deadline = Deadline(timeout_s or 30.0 + n * 0.05, self.board_clock)
         while True:
             count = int(shots.received.sum())
             if progress is not None and count != last_count:
                 progress(count)
             if count != last_count:
-                quiet_since = time.monotonic()
+                quiet = Deadline(QUIET_S, self.board_clock)
                 last_count = count
             if count == n:
                 return
@@ -432,13 +435,13 @@ class SensorClient:
                 raise AcquisitionLost(f"lost the sensor board on {self.port_name} "
                                       f"mid-acquisition ({self.link_error}); {count} of {n} "
                                       f"shots arrived", shots)
-            if time.monotonic() > deadline:
+            if deadline.passed():
                 self.disarm()
                 return
-            if time.monotonic() - quiet_since > 0.5:
+            if quiet.passed():
                 if self.status()["state"] == SPEC.enums["state"]["idle"]:
                     return  # the device finished; the rest were lost
-                quiet_since = time.monotonic()
+                quiet = Deadline(QUIET_S, self.board_clock)
             with self.cond:
                 self.cond.wait(0.05)
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from dmdsm.marlin_patch import QUICK_STOP_CLEAN_S, MachineLimits, load_machine, numbered
 
 from . import stage_control
+from .board_clock import BoardClock, Deadline
 from .safety import UnsafeMove, check_target
 from .transport import LinkError, open_port
 
@@ -87,6 +88,7 @@ class StageClient:
         # asks for it (a command, a procedure, the API): the last guard before the wire
         self.limits = limits or load_machine()
         self.ser = open_port(port, baudrate)
+        self.board_clock = BoardClock(port)  # an emulated board's own time, if published
         self.timeout_s = timeout_s
         # one line in flight (ping-pong, as OctoPrint): a line error makes Marlin drain its
         # receive ring, and the tail of a line behind it that arrives after the drain has no
@@ -226,19 +228,18 @@ class StageClient:
             if n >= r:
                 self._write(self.unacked[n])
 
-    def _pump(self, until: float, done: callable) -> None:
-        """Read and handle lines until done() or the deadline; busy lines extend it."""
-        deadline = until
+    def _pump(self, deadline: Deadline, done: callable) -> None:
+        """Read and handle lines until done() or the deadline (host and board time); busy
+        lines extend it."""
         while not done():
             self._check_usable()
-            now = time.monotonic()
-            if now > deadline:
+            if deadline.passed():
                 raise TimeoutError
             busy_before = self.stats.busy
             for line in self._read_lines():
                 self._handle(line)
             if self.stats.busy != busy_before:
-                deadline = time.monotonic() + self.timeout_s
+                deadline = Deadline(self.timeout_s, self.board_clock)
                 if self._connecting:
                     self.busy_at_connect = True
 
@@ -256,15 +257,15 @@ class StageClient:
             # an M110 sent meanwhile is lost, so it goes again until acknowledged. A board
             # still running an earlier client's moves says `busy`: the M110 waits behind
             # them, and so will every line after it, in order, so the link is usable now
-            end = time.monotonic() + self.timeout_s + BOOT_S
+            end = Deadline(self.timeout_s + BOOT_S, self.board_clock)
             while True:
                 self._write(line)
                 try:
-                    self._pump(min(time.monotonic() + M110_RETRY_S, end),
+                    self._pump(Deadline(M110_RETRY_S, self.board_clock),
                                lambda: 0 not in self.unacked or self.busy_at_connect)
                     break
                 except TimeoutError:
-                    if time.monotonic() >= end:
+                    if end.passed():
                         note = stage_control.halted_note(self.port_name)
                         if note:
                             raise StageError(
@@ -304,7 +305,7 @@ class StageClient:
         """Pump until done(); after a silent timeout probe (up to 3 times), then give up."""
         for attempt in range(4):
             try:
-                self._pump(time.monotonic() + timeout_s, done)
+                self._pump(Deadline(timeout_s, self.board_clock), done)
                 return
             except TimeoutError:
                 if attempt == 3:
@@ -448,8 +449,8 @@ class StageClient:
         self._write("M410\n")
 
     def _settle_stop(self) -> dict[str, float]:
-        limit = time.monotonic() + (len(self.unacked) + 3) * (QUICK_STOP_CLEAN_S +
-                                                              self.timeout_s)
+        limit = Deadline((len(self.unacked) + 3) * (QUICK_STOP_CLEAN_S + self.timeout_s),
+                         self.board_clock)
         while self.unacked:
             oldest = next(iter(self.unacked))
             try:

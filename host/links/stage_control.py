@@ -24,26 +24,28 @@ from pathlib import Path
 STOP_REPLY_S = 30.0  # the owner's proof of standing takes ~1 s per line Marlin had not run
 
 
-def _state_dir() -> Path:
+def state_dir() -> Path:
+    """The per-user folder (mode 0700) of the files kept per port."""
     base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
     d = Path(base) / f"dmdsm-{os.getuid()}"
     d.mkdir(mode=0o700, exist_ok=True)
     return d
 
 
-def _key(port: str) -> str:
+def port_key(port: str) -> str:
+    """A port's name for those files: a hash of its real path (a symlink and its pty agree)."""
     real = port if "://" in port else os.path.realpath(port)
     return hashlib.sha256(real.encode()).hexdigest()[:16]
 
 
 def socket_path(port: str) -> Path:
     """Where the process holding `port` listens for stop requests."""
-    return _state_dir() / f"stage-{_key(port)}.sock"
+    return state_dir() / f"stage-{port_key(port)}.sock"
 
 
 def halt_path(port: str) -> Path:
     """The note left when the board on `port` was sent M112."""
-    return _state_dir() / f"stage-{_key(port)}.halted"
+    return state_dir() / f"stage-{port_key(port)}.halted"
 
 
 def note_halted(port: str, how: str) -> None:

@@ -19,8 +19,10 @@ from dmdsm.sim.servers.runner import SimConfig
 
 
 def dmdsm(*args, env=None):
+    """Run dmdsm; the timeout only guards against a hang: on a loaded machine the rehosted
+    board runs at 1-7 % of real time, and 53 shots of 4096 samples then took over 120 s."""
     return subprocess.run([sys.executable, "-m", "dmdsm.host", *args], capture_output=True,
-                          text=True, timeout=120, env=env)
+                          text=True, timeout=900, env=env)
 
 
 def test_info_json(emulator):

@@ -135,6 +135,21 @@ def _points_done(path):
         return 0
 
 
+def _signal_at_point(emu, proc, path, stop_at: int, sig: int) -> None:
+    """Send `sig` once the file holds at least `stop_at` points, with the emulator held
+    while the file is read: the scan cannot run on (or finish) between the look and the
+    signal however slowly the look goes on a loaded machine (a look takes a SWMR probe)."""
+    while proc.poll() is None:
+        with emu.server.lock:  # the boards stand still: the scan waits on them
+            if _points_done(path) >= stop_at:
+                os.kill(proc.pid, sig)
+                return
+        t = emu.sim.t  # let the boards run on a little (less than a point), then look again
+        while emu.sim.t < t + 0.02 and proc.poll() is None:
+            time.sleep(0.001)
+    raise AssertionError(f"the scan ended before point {stop_at}: {proc.communicate()}")
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
 def test_interrupted_scan_resumes_to_the_same_file(emulator, tmp_path, sig):
     emu = emulator(speed=5.0, scene="aluminium_block", seed=5, frozen_noise=True)
@@ -147,18 +162,13 @@ def test_interrupted_scan_resumes_to_the_same_file(emulator, tmp_path, sig):
     db = tmp_path / "db"
     dmdsm(*_scan_cmd(emu, tmp_path, db, "whole")[3:])
     whole = read_scan(db / "scans" / "whole.h5")
-    # a random point in the first half: under load the file is seen late (it is busy while
-    # written), and a kill aimed near the end landed after the scan had finished
+    # a random point in the first half
     stop_at = int(np.random.default_rng(int(sig)).integers(3, whole.n_points // 2))
     path = db / "scans" / "cut.h5"
     proc = subprocess.Popen(_scan_cmd(emu, tmp_path, db, "cut"), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 300
-    while _points_done(path) < stop_at and time.monotonic() < deadline \
-            and proc.poll() is None:
-        time.sleep(0.02)
-    os.kill(proc.pid, sig)
+    _signal_at_point(emu, proc, path, stop_at, sig)
     _, err = proc.communicate(timeout=60)
     cut = read_scan(path)
     assert stop_at <= cut.n_points < whole.n_points

@@ -87,10 +87,12 @@ class PtyServer:
             self.sim.scene.objects = list(objects)
             self.sim.sensor._hit_cache = None
 
-    def _watch_scene(self) -> None:
-        """Mount the scene named in DIR/scene when the file changes (checked every 0.2 s)."""
+    def _watch_scene(self, host_spoke: bool = False) -> None:
+        """Mount the scene named in DIR/scene when the file changes (checked every 0.2 s, and
+        whenever the host sends bytes: a command typed after `echo NAME > DIR/scene` sees the
+        new scene from its first byte, however busy the machine)."""
         now = time.monotonic()
-        if self.scene_file is None or now - self._scene_check < 0.2:
+        if self.scene_file is None or (now - self._scene_check < 0.2 and not host_spoke):
             return
         self._scene_check = now
         try:
@@ -131,6 +133,8 @@ class PtyServer:
                 readable, _, _ = select.select(fds, [], [], 0.001)
             except (OSError, ValueError):  # a port closed (a pulled cable) since fds was read
                 continue
+            if readable:
+                self._watch_scene(host_spoke=True)
             with self.lock:
                 for p in self.ports.values():
                     if p.master in readable:

@@ -34,6 +34,11 @@ class RigPlan:
     depth_range_mm: tuple[float, float] = (2.0, 25.0)  # where echoes are searched
 
 
+class NoEcho(ValueError):
+    """A whole tip raster or edge sweep without an echo: the sensor does not face the rig
+    where --at put it (raised at once: the rest of the step would be as empty)."""
+
+
 def check_plan(plan: RigPlan, step: str) -> None:
     """Refuse, before anything moves, a plan whose data could not be solved (ValueError)."""
     if step == "tip":
@@ -107,6 +112,14 @@ def scan_rig(stage: StageMotion, sensor: ShotSensor, setup: RangingSetup, plan: 
             on_row(rows[-1])
         if progress is not None:
             progress(i + 1, len(jobs))
+        sweep = rows[-len(offs):]
+        if len(sweep) == len(offs) and offs.size and sweep[0]["line"] == line == 0 and \
+                sweep[0]["frame"] == frame and not any(np.isfinite(r["d_mm"]) for r in sweep):
+            raise NoEcho(
+                f"no echo across the filament at table angle {th:g} deg (X {x - offs[-1]:.2f} "
+                f"± {plan.edge_half_mm:g} mm, Y {y:.2f}, Z {z:g}): the filament is not in front "
+                f"of the sensor there; jog to it (docs/calibration.md, \"Finding the tip and the "
+                f"filament\") and give that position as --at X Y 0")
     return rows
 
 
@@ -146,6 +159,12 @@ def _scan_tips(stage: StageMotion, sensor: ShotSensor, mf: MatchedFilter, setup:
                 if progress is not None:
                     progress(len(rows) + len(frame_rows), total)
         rows += frame_rows
+        if not any(np.isfinite(r["d_mm"]) for r in frame_rows):
+            raise NoEcho(
+                f"no echo in tip frame {f + 1} (X {cx:.2f}, Z {cz:.2f} ± {plan.tip_half_mm:g} mm "
+                f"at Y {y0 - dy:.2f}): the filament's tip is not in front of the sensor there; "
+                f"jog to it (docs/calibration.md, \"Finding the tip and the filament\") and "
+                f"give that position as --at")
         amps = np.array([r["amplitude"] for r in frame_rows])
         keep = amps >= 0.5 * amps.max() if amps.max() > 0 else np.ones(len(amps), bool)
         centers.append(np.array([np.mean([r["sx_mm"] for r, k in zip(frame_rows, keep) if k]),

@@ -77,7 +77,7 @@ def _scan(args: argparse.Namespace) -> None:
 
     from dmdsm.marlin_patch import load_machine
 
-    from ..calibration.procedure import RigPlan, check_plan, scan_rig
+    from ..calibration.procedure import NoEcho, RigPlan, check_plan, scan_rig
     from ..links.config import load_config, resolve_port
     from ..links.safety import UnsafeMove, check_target
     from ..links.sensor import SensorClient
@@ -126,6 +126,10 @@ def _scan(args: argparse.Namespace) -> None:
             writer = RawWriter(args.data)
             scan_rig(st, sc, setup, plan, args.step, progress,
                      on_row=lambda row: writer.write([row]))
+    except NoEcho as e:  # nothing of this step is worth keeping: the same command re-runs
+        writer.close()
+        drop_step(args.data, args.step)
+        raise CliError(f"{e}; nothing of the {args.step} step was kept") from None
     except (ValueError, CalibrationError) as e:
         raise CliError(str(e)) from None
     except LinkError as e:  # the stage was quick-stopped by its context manager

@@ -25,6 +25,10 @@ def load_truth(path: Path) -> tuple[float, float]:
 
     try:
         doc = tomllib.loads(Path(path).read_text())
+        if "sample" in doc or "scan" in doc:
+            raise CliError(f"{path} is a scan plan, not a truth file: give the block's size "
+                           f"as --box-mm WIDTH DEPTH (e.g. --box-mm 50 30), or a truth file "
+                           f"holding shape = \"box\" and size_mm = [x, y, z]")
         if doc.get("shape", "box") != "box":
             raise ValueError(f"shape {doc.get('shape')!r} is not supported (only \"box\")")
         size = vector3(doc["size_mm"], "size_mm")
@@ -60,7 +64,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_db)
     p = sub.add_parser("reconstruct", help="object-frame points, contours, block validation")
     p.add_argument("scan", type=Path, help="scan file (DB/scans/ID.h5)")
-    p.add_argument("--truth", type=Path, help="block truth TOML: e = d(X, E) per modality")
+    truth = p.add_mutually_exclusive_group()
+    truth.add_argument("--box-mm", type=float, nargs=2, metavar=("WIDTH", "DEPTH"),
+                       help="the block's true outline (mm, x and y): e = d(X, E) per modality "
+                            "(the paper's validation)")
+    truth.add_argument("--truth", type=Path, help="the same from a truth TOML (shape = "
+                       "\"box\", size_mm = [x, y, z])")
     p.add_argument("--ply", type=Path, help="write the point cloud")
     p.add_argument("--plot", type=Path, help="write contours like the paper's Figs. 3-4 (PNG)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -190,9 +199,15 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     pts = scan_points(scan)
     result: dict = {"scan": str(args.scan), "points": {m: len(pts[m]["P"]) for m in MODS}}
-    fits = None
-    if args.truth:
+    fits, size = None, None
+    if args.box_mm:
+        size = tuple(args.box_mm)
+        if not all(0 < x <= 1000 for x in size):  # also refuses nan
+            raise CliError(f"--box-mm takes two lengths in 0..1000 mm (got {size[0]:g} "
+                           f"{size[1]:g})")
+    elif args.truth:
         size = load_truth(args.truth)
+    if size is not None:
         fits = validate_block(pts, size)
         result["validation"] = fits
     if args.ply:
@@ -202,7 +217,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     if args.plot:
         from ..report.plots import contour_figure
         with atomic_output(args.plot, flag="--plot") as tmp:
-            contour_figure(pts, tmp, size if args.truth else None, fits,
+            contour_figure(pts, tmp, size, fits,
                            title=str(scan.sample.get("name", "")))
         result["plot"] = str(args.plot)
     if args.json:

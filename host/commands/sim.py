@@ -9,13 +9,20 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `sim`."""
     p = sub.add_parser("sim", help="run the emulator of both boards on pseudo-terminals")
     p.add_argument("--scene", default="aluminium_block",
                    help="objects on the turntable (--list-scenes shows them)")
-    p.add_argument("--list-scenes", action="store_true", help="print the scenes and exit")
+    p.add_argument("--list-scenes", action="store_true",
+                   help="print the scenes (objects, materials, sizes in mm) and exit")
+    p.add_argument("--positions", action="store_true",
+                   help="print where the README's hand pipeline puts the sensor on this "
+                        "emulator (the block's gauge distance, the rig's tip and filament) "
+                        "and exit: what a user finds by jogging on the machine")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="simulated seconds per wall-clock second (default 1)")
@@ -46,7 +53,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from .errors import CliError
 
     if args.list_scenes:
-        print("\n".join(SCENES))
+        print(list_scenes(SCENES))
+        return 0
+    if args.positions:
+        print(hand_positions(SimConfig()))
         return 0
     if args.speed <= 0:
         raise CliError("--speed must be positive")
@@ -92,3 +102,50 @@ def _watch_rules(sim: object, server: object) -> None:
     while getattr(sim.sensor, "violation", None) is None:  # type: ignore[attr-defined]
         time.sleep(0.2)
     server.stop()  # type: ignore[attr-defined]
+
+
+def list_scenes(scenes: dict) -> str:
+    """One line per scene: its objects with material and size (width x depth x height, mm,
+    in the table frame), what `dmdsm plan new --size-mm` takes."""
+    from dmdsm.sim.physics.objects import bounding_size
+
+    lines = []
+    for name, make in scenes.items():
+        parts = []
+        for obj in make():
+            w, d, h = bounding_size(obj)
+            shape = type(obj.shape).__name__.lower()
+            parts.append(f"{obj.material} {shape} {w:.1f} x {d:.1f} x {h:.1f} mm")
+        lines.append(f"{name:18s} {'; '.join(parts)}")
+    return "\n".join(lines)
+
+
+# where the hand pipeline puts the sensor (README "The same pipeline by hand"); the demo
+# uses the same places (host/demo/session.py)
+RANGING_AT_MM = (235.0, 266.0, 20.0)  # in front of the block's face, 7-8 mm away
+TIP_AT = (np.array([0.0, -10.0, 20.0]), 6.0)     # table frame point, then back along v (mm)
+EDGE_AT = (np.array([25.0, 0.0, 0.0]), 6.25)
+
+
+def hand_positions(cfg: object) -> str:
+    """The README's positions on this emulator, from its truth (v, n, X_R, the block): on
+    the machine a gauge block gives the distance and jogging finds the tip and filament."""
+    from dmdsm.sim.physics.objects import aluminium_block
+    from dmdsm.sim.physics.scene import Scene, table_frame
+
+    v_raw, n_raw, X_R = (np.asarray(x, float) for x in (cfg.v, cfg.n, cfg.X_R))
+    scene = Scene(v=v_raw, n=n_raw, X_R=X_R, objects=aluminium_block())  # as runner.py
+    v, n = v_raw / np.linalg.norm(v_raw), n_raw / np.linalg.norm(n_raw)
+    frame = table_frame(n)
+    d = scene.cast(np.array(RANGING_AT_MM), 0.0).d
+    tip = X_R + frame @ TIP_AT[0] - TIP_AT[1] * v
+    edge = X_R + frame @ EDGE_AT[0] - EDGE_AT[1] * v
+    at = " ".join(f"{c:g}" for c in RANGING_AT_MM)
+    return "\n".join([
+        f"ranging: stage at {at}: the block's face is {d:.3f} mm in front of the sensor "
+        f"(calibrate-range -x {RANGING_AT_MM[0]:g} -y {RANGING_AT_MM[1]:g} -z "
+        f"{RANGING_AT_MM[2]:g} --start-distance {d:.3f})",
+        f"tip:     --at {tip[0]:.1f} {tip[1]:.1f} {tip[2]:.1f} (rig_horizontal: "
+        f"{TIP_AT[1]:g} mm in front of the filament's tip, level with it)",
+        f"edge:    --at {edge[0]:.1f} {edge[1]:.1f} 0 (rig_vertical: {EDGE_AT[1]:g} mm in "
+        f"front of the filament)"])

@@ -168,6 +168,30 @@ class ScanPlan:
                 self.standoff_mm + 2 * self.radius_mm + self.depth_margin_mm)
 
 
+FLY_AVERAGE = 12  # shots per fly waveform: 12 at 1 kHz, 2 mm apart = 167 mm/s (docs/scanning.md)
+
+
+def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: bool,
+                  material: str = "", mode: str = "step", modality: str = "both") -> ScanPlan:
+    """A first plan for an object of width x depth x height (mm) centred on the table: its
+    bounding cylinder (+1 mm; a box's from its diagonal), one level at half its height (at
+    most 40 mm), four angles, the middle 70 % of its width; every 4 mm step and shoot, every
+    2 mm fly. Edit the file for more levels or a finer step (docs/scanning.md)."""
+    w, d, h = (float(x) for x in size_mm)
+    if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
+        raise PlanError(f"the size must be three positive numbers in mm (got {w:g} {d:g} "
+                        f"{h:g})")
+    radius = max(w, d) / 2 if round_ else math.hypot(w, d) / 2
+    mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
+    plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
+                    levels_mm=[mm(min(0.5 * h, 40.0))], angles_deg=[0.0, 90.0, 180.0, 270.0],
+                    half_width_mm=mm(0.35 * w), step_mm=4.0 if mode == "step" else 2.0,
+                    modality=modality, mode=mode,
+                    **({"average": FLY_AVERAGE} if mode == "fly" else {}))
+    plan.validate()
+    return plan
+
+
 def point_ranger(plan: ScanPlan, setup: RangingSetup, n_samples: int, tick_hz: float
                  ) -> PointRanger:
     """The ranger of this plan's waveforms (n_samples each, trigger phases in ticks at

@@ -185,7 +185,8 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
     plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
                     levels_mm=[mm(min(0.5 * h, 40.0))], angles_deg=[0.0, 90.0, 180.0, 270.0],
-                    half_width_mm=mm(0.35 * w), step_mm=4.0 if mode == "step" else 2.0,
+                    half_width_mm=max(mm(0.35 * w), 0.1),
+                    step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
                     **({"average": FLY_AVERAGE} if mode == "fly" else {}))
     plan.validate()

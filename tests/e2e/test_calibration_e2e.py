@@ -126,3 +126,37 @@ def test_lost_sensor_stops_the_step_and_keeps_the_points(emulator, tmp_path):
         and "Traceback" not in err
     with StageClient(emu.stage) as st:  # the stage was stopped and still answers
         st.where()
+
+
+
+def test_a_tip_step_with_no_echo_fails_at_once_and_keeps_nothing(emulator, tmp_path):
+    """A guessed --at far from the tip ran 51 s, saved 324 rows with no echo and exited 0
+    (issue 30): it fails after the first raster, says what to do, and leaves no rows."""
+    emu = emulator(speed=5.0, scene="aluminium_block", seed=3)
+    with StageClient(emu.stage) as st:
+        st.home()
+        st.move(x=235, y=266, z=20, wait=True)
+        st.wait()
+    dmdsm("calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235", "-y",
+          "266", "-z", "20", "--start-distance", f"{emu.sim.truth()['distance_mm']:.4f}",
+          "--steps", "6", "--step", "1", "--shots", "2", "--fixed-c", "-o",
+          str(tmp_path / "ranging.json"))
+    with emu.server.lock:
+        emu.sim.scene.objects = rig_horizontal()
+        emu.sim.sensor._hit_cache = None
+    data = tmp_path / "rig.csv"
+    r = subprocess.run(CMD + ["calibrate", "--step", "tip", "--sensor", emu.sensor,
+                              "--stage", emu.stage, "--ranging", str(tmp_path / "ranging.json"),
+                              "--data", str(data), "--at", "200", "250", "60",
+                              "--tip-depths", "0", "3", "6"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert "no echo in tip frame 1" in line and "give that position as --at" in line
+    assert "nothing of the tip step was kept" in line and "Traceback" not in r.stderr
+    assert not data.exists()
+    again = subprocess.run(CMD + ["calibrate", "--step", "tip", "--sensor", emu.sensor,
+                                  "--stage", emu.stage, "--ranging",
+                                  str(tmp_path / "ranging.json"), "--data", str(data), "--at",
+                                  "0", "0", "0"], capture_output=True, text=True, timeout=60)
+    assert "already holds" not in again.stderr  # the same command runs again after jogging

@@ -1,0 +1,74 @@
+"""`dmdsm plan new` / `plan show`, `sim --list-scenes` / `--positions` and `reconstruct
+--box-mm`: the files and numbers the README's hand pipeline takes from commands (issue 30)."""
+
+import subprocess
+import sys
+import tomllib
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dmdsm.host.scan.plan import load_plan, plan_for_size
+
+CMD = [sys.executable, "-m", "dmdsm.host"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run(CMD + list(args), capture_output=True, text=True, timeout=120,
+                          cwd=cwd)
+
+
+def test_plan_new_writes_a_plan_scan_reads(tmp_path):
+    r = run("plan", "new", "soda_can", "--size-mm", "66", "66", "122", "--round",
+            "--material", "aluminium", "--mode", "fly", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(tmp_path / "soda_can.toml")
+    assert (plan.object_id, plan.material, plan.mode) == ("soda_can", "aluminium", "fly")
+    assert plan.radius_mm == 34.0 and plan.levels_mm == [40.0] and plan.step_mm == 2.0
+    assert "96 points" in r.stdout
+    again = run("plan", "new", "soda_can", "--size-mm", "66", "66", "122", cwd=tmp_path)
+    assert again.returncode == 2 and "--force" in again.stderr  # never over a plan
+    assert load_plan(tmp_path / "soda_can.toml").mode == "fly"
+    box = run("plan", "new", "block", "--size-mm", "50", "30", "40", "-o", "b.toml",
+              cwd=tmp_path)
+    assert box.returncode == 0 and load_plan(tmp_path / "b.toml").radius_mm == 30.2  # diagonal
+    shown = run("plan", "show", "b.toml", cwd=tmp_path)
+    assert shown.returncode == 0 and "36 points" in shown.stdout
+
+
+def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
+    for size in (["0", "10", "10"], ["nan", "10", "10"], ["10", "10", "-1"],
+                 ["900", "900", "10"]):
+        r = run("plan", "new", "x", "--size-mm", *size, cwd=tmp_path)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, size
+        assert len(r.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "x.toml").exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(w=st.floats(1, 250), d=st.floats(1, 250), h=st.floats(5, 400), round_=st.booleans(),
+       mode=st.sampled_from(["step", "fly"]))
+def test_a_plan_for_any_size_that_fits_the_scanner_loads_back_the_same(w, d, h, round_, mode):
+    plan = plan_for_size("obj", (w, d, h), round_, "paper", mode)
+    doc = tomllib.loads(plan.to_toml())
+    assert doc["object"]["radius_mm"] >= max(w, d) / 2 and doc["scan"]["levels_mm"][0] <= h
+    assert plan.hash() == plan_for_size("obj", (w, d, h), round_, "paper", mode).hash()
+
+
+def test_sim_lists_each_scenes_objects_with_material_and_size():
+    out = run("sim", "--list-scenes").stdout
+    line = next(x for x in out.splitlines() if x.startswith("aluminium_block "))
+    assert "aluminium box 50.0 x 30.0 x 40.0 mm" in line
+    assert any(x.startswith("soda_can ") and "66.0 x 66.0 x 122.0 mm" in x
+               for x in out.splitlines())
+
+
+def test_reconstruct_names_a_plan_given_as_the_truth(tmp_path):
+    run("plan", "new", "block", "--size-mm", "50", "30", "40", cwd=tmp_path)
+    from dmdsm.host.commands.db import load_truth
+    from dmdsm.host.commands.errors import CliError
+    try:
+        load_truth(tmp_path / "block.toml")
+        raise AssertionError("a plan passed as a truth file")
+    except CliError as e:
+        assert "is a scan plan, not a truth file" in str(e) and "--box-mm" in str(e)

@@ -120,9 +120,60 @@ def _check_procedure(args: argparse.Namespace) -> None:
                            f"elsewhere or take fewer or shorter steps") from None
 
 
+MAX_SHOT_BYTES = 1 << 30  # waveforms read into memory at most (a file's shape is checked first)
+
+
+def read_acquisition(path: Path) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """The received shots of a `dmdsm acquire` file: waveforms (centred counts), trigger
+    phases (s), pretrigger (samples) and shot ids; any other HDF5 file (another program's, a
+    damaged one, one too large to read) is a one-line CliError that says what it is."""
+    import h5py
+
+    from .errors import CliError
+
+    def bad(why: str) -> CliError:
+        return CliError(f"{path}: not a dmdsm acquisition file ({why}); give a file written "
+                        f"by `dmdsm acquire`")
+
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format_name") not in ("dmdsm-shots", b"dmdsm-shots"):
+                raise bad("no format_name 'dmdsm-shots'")
+            d, s = f.get("/entry/data"), f.get("/entry/instrument/sensor")
+            if not isinstance(d, h5py.Group) or not isinstance(s, h5py.Group):
+                raise bad("no /entry/data or /entry/instrument/sensor group")
+            sets = {k: d.get(k) for k in ("waveforms", "received", "trigger_phase", "shot_id")}
+            for k, ds in sets.items():
+                if not isinstance(ds, h5py.Dataset) or ds.dtype.names is not None:
+                    raise bad(f"/entry/data/{k} is not a plain dataset")
+            w = sets["waveforms"]
+            n = w.shape[0] if w.ndim == 2 else -1
+            if n < 0 or w.dtype.kind not in "ui" or any(
+                    sets[k].shape != (n,) for k in ("received", "trigger_phase", "shot_id")):
+                raise bad("waveforms must be (shots, samples) integers with one received, "
+                          "trigger_phase and shot_id per shot")
+            if w.size * 8 > MAX_SHOT_BYTES:
+                raise CliError(f"{path}: {n} waveforms of {w.shape[1]} samples is more than "
+                               f"this command reads at once ({MAX_SHOT_BYTES >> 30} GiB as "
+                               f"numbers): split the acquisition")
+            tick_hz = float(s.attrs.get("tick_hz", np.nan))
+            if not (np.isfinite(tick_hz) and tick_hz > 0):
+                raise bad("no positive tick_hz on /entry/instrument/sensor")
+            ok = sets["received"][:].astype(bool)
+            x = w[:][ok].astype(float) - 32768.0
+            phase = sets["trigger_phase"][:][ok] / tick_hz
+            pre = int(s.attrs.get("config_pretrigger", 0))
+            ids = sets["shot_id"][:][ok]
+    except OSError as e:
+        raise CliError(f"{path}: cannot read it as HDF5 ({e}); give a file written by "
+                       f"`dmdsm acquire`") from None
+    except (TypeError, ValueError) as e:
+        raise bad(str(e)) from None
+    return x, phase, pre, ids
+
+
 def cmd_range(args: argparse.Namespace) -> int:
     """Range every received shot of an HDF5 acquisition."""
-    import h5py
 
     from .errors import CliError
 
@@ -134,17 +185,7 @@ def cmd_range(args: argparse.Namespace) -> int:
         raise CliError(f"{args.calibration} has no {args.modality.upper()} calibration")
     if args.temperature is not None:
         setup.cals[args.modality].c_mm_s = speed_of_sound_mm_s(args.temperature)
-    try:
-        with h5py.File(args.file, "r") as f:
-            d = f["/entry/data"]
-            ok = d["received"][:]
-            x = d["waveforms"][:][ok].astype(float) - 32768.0
-            tick_hz = float(f["/entry/instrument/sensor"].attrs["tick_hz"])
-            phase = d["trigger_phase"][:][ok] / tick_hz
-            pre = int(f["/entry/instrument/sensor"].attrs.get("config_pretrigger", 0))
-            ids = d["shot_id"][:][ok]
-    except (OSError, KeyError) as e:
-        raise CliError(f"{args.file}: not a dmdsm acquisition file ({e})") from None
+    x, phase, pre, ids = read_acquisition(args.file)
     dist, snr = range_waveforms(x, phase, setup, args.modality, pre)
     std = np.where(np.isfinite(dist), distance_std_mm(setup, args.modality, snr), np.nan)
     if args.json:

@@ -23,6 +23,7 @@ _EXPORTS = {  # name -> subpackage that defines it
     "RangingSetup": "ranging", "MatchedFilter": "ranging", "calibrate_range": "ranging",
     "load_calibration": "calibration", "solve": "calibration", "read_raw": "calibration",
     "center_points": "calibration", "CalibrationError": "calibration",
+    "CalibrationResult": "calibration",
     "ScanPlan": "scan", "load_plan": "scan", "run_plan": "scan", "read_scan": "scan",
     "scan_points": "scan", "validate_block": "scan", "list_scans": "scan",
     "predict_scan": "classify", "assemble": "classify", "fit": "classify",
@@ -32,12 +33,20 @@ __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literal
     "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "Stage",
     "StageMotion", "Sensor", "ShotSensor", "StreamSensor", "RangingSetup",
     "MatchedFilter", "calibrate_range", "load_calibration", "solve", "read_raw", "center_points",
-    "CalibrationError", "ScanPlan", "load_plan", "run_plan", "read_scan", "scan_points",
-    "validate_block", "list_scans", "predict_scan", "assemble", "fit", "load_model", "save_model",
+    "CalibrationError", "CalibrationResult", "ScanPlan", "load_plan", "run_plan", "read_scan",
+    "scan_points", "validate_block", "list_scans", "predict_scan", "assemble", "fit",
+    "load_model", "save_model",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __getattr__
-    from .calibration import CalibrationError, center_points, load_calibration, read_raw, solve
+    from .calibration import (
+        CalibrationError,
+        CalibrationResult,
+        center_points,
+        load_calibration,
+        read_raw,
+        solve,
+    )
     from .classify import assemble, fit, load_model, predict_scan, save_model
     from .links import (
         LinkError,

@@ -212,18 +212,21 @@ def _rebuild(a: dict[str, np.ndarray], prov: dict, path: Path) -> FusedModel:
                       modalities=mods, modality_model=which, seed=seed)
 
 
-def check_provenance(prov: dict, path: Path, fs_hz: float, window: int) -> None:
-    """Refuse data the model was not trained for (another sample rate or window)."""
-    if abs(prov["fs_hz"] - fs_hz) > 1e-6 * fs_hz:
+def check_provenance(prov: dict, path: Path, fs_hz: float | None, window: int | None) -> None:
+    """Refuse data the model was not trained for (another sample rate in Hz or window in
+    samples); a check given None is not made."""
+    if fs_hz is not None and abs(prov["fs_hz"] - fs_hz) > 1e-6 * fs_hz:
         raise ClassifyError(f"{path} was trained on {prov['fs_hz']:.0f} Hz data, these "
                             f"waveforms are {fs_hz:.0f} Hz: retrain on data at this rate")
-    if prov["window"] != window or prov.get("pre", PRE) != PRE:
+    if window is not None and (prov["window"] != window or prov.get("pre", PRE) != PRE):
         raise ClassifyError(f"{path} was trained on {prov['window']}-sample windows, not "
                             f"{window}: pass --window {prov['window']} or retrain")
 
 
-def load_model(path: Path, fs_hz: float, window: int) -> tuple[FusedModel, dict]:
-    """read_model() + check_provenance()."""
+def load_model(path: Path, fs_hz: float | None = None, window: int | None = None
+               ) -> tuple[FusedModel, dict]:
+    """A model file and its provenance (classes, sample rate `fs_hz`, `window`, training
+    data); given fs_hz (Hz) or window (samples), data of another one is refused."""
     model, prov = read_model(path)
     check_provenance(prov, path, fs_hz, window)
     return model, prov

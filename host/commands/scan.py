@@ -90,7 +90,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     sensor = SensorClient(resolve_port("sensor", args.sensor, cfg))
     try:
         with StageClient(resolve_port("stage", args.stage, cfg)) as st:
-            run = run_plan(sensor, st, plan, cal, cal_text, setup, args.db,
+            run = run_plan(sensor, st, plan, calibration=cal, calibration_toml=cal_text,
+                           setup=setup, db=args.db,
                            scan_id=args.scan_id, home=not args.no_home, progress=progress,
                            on_start=on_start)
     except ScanFileError as e:

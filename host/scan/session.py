@@ -118,18 +118,22 @@ def _complete(scan_id: str, path: Path) -> ScanRun | None:
     return ScanRun(scan_id, path, done.n_points, done.n_points, "already complete")
 
 
-def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, calibration: dict,
-             calibration_toml: str, setup: RangingSetup, db: Path, scan_id: str | None = None,
-             home: bool = True,
+def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
+             setup: RangingSetup, db: Path, calibration_toml: str | None = None,
+             scan_id: str | None = None, home: bool = True,
              progress: Progress | None = None,
              on_start: Callable[[ScanWriter, int], None] | None = None) -> ScanRun:
     """Scan `plan` with open clients into the database folder `db` (created if missing).
 
-    calibration is v, n, X_R from `load_calibration`; raises UnsafeMove before any motion if
+    calibration is v, n, X_R from `load_calibration` (calibration_toml: the file's text, kept
+    in the scan file; by default written from those three); raises UnsafeMove before any motion if
     a move of the plan leaves the envelope or enters a keep-out, ScanFileError if the file
     cannot be resumed. The stage should be an open StageClient (its context manager
     quick-stops it on Ctrl-C); the sensor is disarmed on Ctrl-C here."""
     points = checked_points(plan, calibration)  # every move, before any motion
+    if calibration_toml is None:
+        calibration_toml = "[calibration]\n" + "".join(
+            f"{k} = {np.asarray(calibration[k], float).tolist()}\n" for k in ("v", "n", "X_R"))
     n, X_R = (np.asarray(calibration[k], float) for k in ("n", "X_R"))
     machine, keep = load_machine(), keep_outs(plan, n, X_R)
     run_hash = scan_identity(plan, calibration_toml, setup)

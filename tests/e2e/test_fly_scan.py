@@ -35,7 +35,8 @@ def test_a_line_with_a_lost_waveform_is_measured_again_not_kept_with_a_hole(emul
     sensor._route = lossy
     try:
         with StageClient(emu.stage) as st:
-            run = run_plan(sensor, st, plan, cal, text, ranging, tmp_path / "db", home=False)
+            run = run_plan(sensor, st, plan, calibration=cal, calibration_toml=text,
+                           setup=ranging, db=tmp_path / "db", home=False)
     finally:
         sensor.close()
     assert run.status == "complete" and run.stats.lost == 1

@@ -189,3 +189,27 @@ def test_ridge_probabilities_come_from_leave_one_out_decisions():
     assert p_true[clear].min() > 0.9
     with pytest.raises(ValueError, match="scoring"):
         CalibratedRidge(store_cv_results=True).fit(X, y)
+
+
+def test_evaluate_and_train_say_what_they_are_doing(tmp_path):
+    """Issue 30: `classify evaluate` (272 s) and `classify train --classifier boss` (18 s)
+    printed nothing until they ended: a bar per protocol, a line before a fit."""
+    import subprocess
+    import sys
+
+    from dmdsm.sim.data.dataset import make_database
+
+    make_database(tmp_path / "db", points=8, seed=3)
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "classify", "evaluate", "--db",
+                        str(tmp_path / "db"), "--classifiers", "minirocket", "--trials", "2",
+                        "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "minirocket random splits" in r.stderr and "2/2" in r.stderr
+    assert "minirocket leave one out" in r.stderr
+    t = subprocess.run([sys.executable, "-m", "dmdsm.host", "classify", "train", "--db",
+                        str(tmp_path / "db"), "--classifier", "minirocket", "-o",
+                        str(tmp_path / "m.model")], capture_output=True, text=True,
+                       timeout=600)
+    assert t.returncode == 0, t.stderr
+    assert t.stderr.startswith("training minirocket on ")

@@ -72,3 +72,25 @@ def test_reconstruct_names_a_plan_given_as_the_truth(tmp_path):
         raise AssertionError("a plan passed as a truth file")
     except CliError as e:
         assert "is a scan plan, not a truth file" in str(e) and "--box-mm" in str(e)
+
+
+def test_one_vocabulary_across_commands():
+    """Issue 30: --calibration was the scanner TOML in scan but ranging.json in range; --step
+    was mm in calibrate-range but tip|edge in calibrate; a start position was -x/-y/-z in one
+    command and --at in another. Each name now means one thing in every command's help."""
+    helps = {c: " ".join(run(*c.split(), "--help").stdout.split())
+             for c in ("calibrate-range", "calibrate", "range", "scan")}
+    for c in ("calibrate-range", "calibrate"):
+        assert "--at X Y Z" in helps[c]
+    assert "--step-mm" in helps["calibrate-range"] and "--step {tip,edge}" in helps["calibrate"]
+    assert "--step " not in helps["calibrate-range"].replace("--step-mm", "")
+    for c in ("range", "scan", "calibrate"):
+        assert "--ranging" in helps[c], c
+    assert "--calibration" not in helps["range"] and "--calibration" in helps["scan"]
+    assert " -x " not in helps["calibrate-range"]
+
+
+def test_calibrate_range_without_a_position_says_what_to_give(tmp_path):
+    r = run("calibrate-range", "--sensor", "loop://", "--stage", "loop://",
+            "--start-distance", "7", cwd=tmp_path)
+    assert r.returncode == 2 and "give --at X Y Z" in r.stderr

@@ -11,6 +11,7 @@ ringing are kept, the distance-dependent amplitude is not.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -305,9 +306,11 @@ def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: np.ndarray) -> np
 
 
 def evaluate_random(ds: Dataset, name: str, trials: int = 50, test_size: float = 0.25,
-                    seed: int = 0, modalities: tuple[str, ...] = MODS) -> np.ndarray:
+                    seed: int = 0, modalities: tuple[str, ...] = MODS,
+                    progress: Callable[[int, int], None] | None = None) -> np.ndarray:
     """The paper's protocol: random stratified 3:1 splits of the points with a window in
-    `modalities`; the summed confusion matrix (rows and columns: np.unique(ds.y))."""
+    `modalities`; the summed confusion matrix (rows and columns: np.unique(ds.y)).
+    progress(done, total) after each fit."""
     from sklearn.model_selection import StratifiedShuffleSplit
 
     classes = np.unique(ds.y)
@@ -319,24 +322,30 @@ def evaluate_random(ds: Dataset, name: str, trials: int = 50, test_size: float =
     for k, (tr, te) in enumerate(split.split(np.zeros(len(ds)), ds.y)):
         model = fit(ds.subset(tr), name, seed + k, modalities)
         cm += confusion(ds.y[te], model.predict(ds.subset(te)), classes)
+        if progress is not None:
+            progress(k + 1, trials)
     return cm
 
 
 def evaluate_loo(ds: Dataset, name: str, seed: int = 0,
-                 modalities: tuple[str, ...] = MODS) -> np.ndarray:
-    """Leave one object out: train on the other objects, test on this one's points."""
+                 modalities: tuple[str, ...] = MODS,
+                 progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Leave one object out: train on the other objects, test on this one's points;
+    progress(objects done, objects) after each."""
     classes = np.unique(ds.y)
     _check_modalities(modalities)
     check_window(ds.window)
     ds = ds.subset(ds.usable(modalities))
     cm = np.zeros((len(classes), len(classes)), int)
-    for obj in np.unique(ds.groups):
+    objects = np.unique(ds.groups)
+    for i, obj in enumerate(objects):
         te = np.nonzero(ds.groups == obj)[0]
         tr = np.nonzero(ds.groups != obj)[0]
-        if ds.y[te[0]] not in set(ds.y[tr]):
-            continue  # the only object of its material: nothing to learn it from
-        model = fit(ds.subset(tr), name, seed, modalities)
-        cm += confusion(ds.y[te], model.predict(ds.subset(te)), classes)
+        if ds.y[te[0]] in set(ds.y[tr]):  # else the only object of its material: nothing
+            model = fit(ds.subset(tr), name, seed, modalities)  # to learn it from
+            cm += confusion(ds.y[te], model.predict(ds.subset(te)), classes)
+        if progress is not None:
+            progress(i + 1, len(objects))
     return cm
 
 

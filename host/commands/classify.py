@@ -6,9 +6,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from ..classify.materials import (
     MODS,
@@ -128,6 +130,11 @@ def cmd_classify(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> int:
     check_output(args.output)  # before the fit
     ds = assemble(_db_paths(args.db), args.window)
+    if not args.json:  # one fit, no steps to count: say what runs and for about how long
+        print(f"training {args.classifier} on {len(ds)} points of "
+              f"{len(np.unique(ds.y))} materials"
+              + (" (a BOSS fit takes about 20 s)" if args.classifier == "boss" else "")
+              + "...", file=sys.stderr, flush=True)
     model = fit(ds, args.classifier, modalities=MODALITY[args.modality], lone_pulses=True)
     save_model(model, ds, args.output)
     out = {"model": str(args.output), "classifier": args.classifier, "points": len(ds),
@@ -167,12 +174,19 @@ def _evaluate(args: argparse.Namespace) -> int:
     for name in args.classifiers:
         r = {}
         trials = args.boss_trials if name == "boss" else args.trials
-        protocols = [("random", lambda n=name, k=trials: evaluate_random(ds, n, k,
-                                                                          modalities=mods))]
+        protocols = [("random", lambda n=name, k=trials, p=None: evaluate_random(
+            ds, n, k, modalities=mods, progress=p))]
         if not args.no_loo:
-            protocols.append(("loo", lambda n=name: evaluate_loo(ds, n, modalities=mods)))
+            protocols.append(("loo", lambda n=name, p=None: evaluate_loo(
+                ds, n, modalities=mods, progress=p)))
         for proto, run in protocols:
-            cm = run()
+            what = f"{name} {'random splits' if proto == 'random' else 'leave one out'}"
+            with tqdm(desc=what, unit="fit" if proto == "random" else "object",
+                      disable=args.json, file=sys.stderr) as bar:
+                def tick(done: int, total: int, bar: tqdm = bar) -> None:
+                    bar.total = total
+                    bar.update(done - bar.n)
+                cm = run(p=tick)
             r[proto] = per_class_accuracy(cm, classes)
             tag = f"{name}_{proto}" + ("" if args.modality == "both" else f"_{args.modality}")
             with atomic_output(args.out / f"confusion_{tag}.csv", flag="--out") as tmp:

@@ -21,13 +21,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Register calibrate-range and range."""
     p = sub.add_parser("calibrate-range", help="fit t0 and c with the stage as a ruler")
     add_ports(p)
-    p.add_argument("-x", type=float, required=True, help="start X (mm)")
-    p.add_argument("-y", type=float, required=True, help="start Y (mm), closest to the target")
-    p.add_argument("-z", type=float, required=True, help="start Z (mm)")
+    p.add_argument("--at", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="start position (mm): the sensor facing the block's face, Y closest "
+                        "to it (required; as in `dmdsm calibrate --at`)")
+    for axis in "xyz":  # the first release's spelling, still read
+        p.add_argument(f"-{axis}", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument("--start-distance", type=float, required=True,
                    help="beam distance to the flat target at the start (mm)")
     p.add_argument("--steps", type=int, default=11, help="depths measured (default 11)")
-    p.add_argument("--step", type=float, default=0.5, help="Y step away from the target (mm)")
+    p.add_argument("--step-mm", dest="step", type=float, default=0.5,
+                   help="Y step away from the target (mm, default 0.5)")
+    p.add_argument("--step", dest="step", type=float, default=argparse.SUPPRESS,
+                   help=argparse.SUPPRESS)  # the first release's spelling, still read
     p.add_argument("--shots", type=int, default=10, help="waveforms per position")
     p.add_argument("--average", type=int, default=16,
                    help="laser shots averaged on the board per waveform")
@@ -42,8 +47,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_calibrate_range)
     p = sub.add_parser("range", help="distances from a recorded acquisition (dmdsm acquire)")
     p.add_argument("file", type=Path, help="HDF5 file from `dmdsm acquire`")
-    p.add_argument("--calibration", type=Path, default=Path("ranging.json"),
-                   help="ranging calibration (default ./ranging.json)")
+    p.add_argument("--ranging", dest="calibration", type=Path, default=Path("ranging.json"),
+                   help="ranging calibration (default ./ranging.json; as in `dmdsm scan`)")
+    p.add_argument("--calibration", dest="calibration", type=Path,
+                   default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # the first spelling
     p.add_argument("--modality", choices=MODALITIES, default="oa",
                    help="which pulse to range (default oa)")
     p.add_argument("--temperature", type=float, default=None,
@@ -97,13 +104,18 @@ def _check_procedure(args: argparse.Namespace) -> None:
     from ..ranging.procedure import positions
     from .errors import CliError, check_setting
 
-    numbers = {"-x": args.x, "-y": args.y, "-z": args.z, "--step": args.step,
+    if args.at is not None:
+        args.x, args.y, args.z = args.at
+    elif None in (args.x, args.y, args.z):
+        raise CliError("give --at X Y Z: the stage position (mm) where the sensor faces the "
+                       "block's face")
+    numbers = {"--at X": args.x, "--at Y": args.y, "--at Z": args.z, "--step-mm": args.step,
                "--start-distance": args.start_distance, "--temperature": args.temperature}
     for flag, value in numbers.items():
         if not np.isfinite(value):
             raise CliError(f"{flag} must be a finite number (got {value})")
     if args.start_distance <= 0 or args.step <= 0:
-        raise CliError("--start-distance and --step must be positive (mm)")
+        raise CliError("--start-distance and --step-mm must be positive (mm)")
     fewest = 1 if args.fixed_c else 2  # t0 and c need two depths at least
     if not fewest <= args.steps <= 1000 or not 1 <= args.lateral <= 100 or args.shots < 1:
         raise CliError(f"--steps must be {fewest}..1000, --lateral 1..100 and --shots at "

@@ -97,6 +97,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     except ScanFileError as e:
         raise CliError(str(e)) from None
     except BaseException:
+        if "bar" in state:  # end the bar's line first: the note goes on a line of its own
+            state["bar"].close()
         w = state.get("writer")
         if w is not None:
             print(f"scan {Path(w.path).stem} stopped after {w.n_done} of {state['planned']} "

@@ -143,8 +143,7 @@ def hand_positions(cfg: object) -> str:
     at = " ".join(f"{c:g}" for c in RANGING_AT_MM)
     return "\n".join([
         f"ranging: stage at {at}: the block's face is {d:.3f} mm in front of the sensor "
-        f"(calibrate-range -x {RANGING_AT_MM[0]:g} -y {RANGING_AT_MM[1]:g} -z "
-        f"{RANGING_AT_MM[2]:g} --start-distance {d:.3f})",
+        f"(calibrate-range --at {at} --start-distance {d:.3f})",
         f"tip:     --at {tip[0]:.1f} {tip[1]:.1f} {tip[2]:.1f} (rig_horizontal: "
         f"{TIP_AT[1]:g} mm in front of the filament's tip, level with it)",
         f"edge:    --at {edge[0]:.1f} {edge[1]:.1f} 0 (rig_vertical: {EDGE_AT[1]:g} mm in "

@@ -169,9 +169,9 @@ def stage_ranging(d: Demo) -> Section:
     d.run("stage", "home", *d.ports[2:])
     d.run("stage", "move", "-x", "235", "-y", "266", "-z", "20", *d.ports[2:])
     start = d.sim.truth()["distance_mm"]  # a gauge block would give this on the machine
-    rep = json.loads(d.run("calibrate-range", *d.ports, "-x", "235", "-y", "266", "-z", "20",
+    rep = json.loads(d.run("calibrate-range", *d.ports, "--at", "235", "266", "20",
                            "--start-distance", f"{start:.4f}", "--steps",
-                           "8" if d.quick else "21", "--step", "1", "--shots", "2",
+                           "8" if d.quick else "21", "--step-mm", "1", "--shots", "2",
                            "--lateral", "3" if d.quick else "5", "--fixed-c",
                            "-o", str(d.out / "ranging.json"), "--json"))
     t = d.sim.truth()

@@ -56,7 +56,7 @@ def ranging_calibration(emu, tmp_path, steps=21):
     out = tmp_path / "ranging.json"
     dmdsm("calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235", "-y",
           "266", "-z", "20", "--start-distance", f"{emu.sim.truth()['distance_mm']:.4f}",
-          "--steps", str(steps), "--step", "1", "--shots", "2", "--lateral", "5",
+          "--steps", str(steps), "--step-mm", "1", "--shots", "2", "--lateral", "5",
           "--fixed-c", "-o", str(out))
     return out
 
@@ -174,6 +174,8 @@ def test_interrupted_scan_resumes_to_the_same_file(emulator, tmp_path, sig):
     assert stop_at <= cut.n_points < whole.n_points
     if sig == signal.SIGINT:
         assert proc.returncode == 130 and "run the same command to continue" in err
+        # on a line of its own, not after the progress bar's last redraw (issue 30)
+        assert any(line.startswith("scan cut stopped after ") for line in err.split("\n")), err
         assert cut.entry["status"] == "interrupted"
         with StageClient(emu.stage) as st:  # the stage was stopped and still answers
             st.where()

@@ -131,11 +131,19 @@ class Sphere(Shape):
 
 @dataclass
 class SceneObject:
-    """A shape of one material standing on the turntable; `name` identifies it."""
+    """A shape standing on the turntable; `name` identifies it. `material` is its surface's;
+    a mesh's regions may have others (`regions`: region number -> material, e.g. a paper
+    label on a glass jar), and `fill` is what fills its cavities (a liquid; None: air)."""
 
     name: str
     material: str
     shape: Shape
+    regions: dict[int, str] = field(default_factory=dict)
+    fill: str | None = None
+
+    def material_of(self, region: int) -> str:
+        """The material of a region of the shape's faces (the object's own where unnamed)."""
+        return self.regions.get(int(region), self.material)
 
 
 @dataclass
@@ -151,6 +159,9 @@ class Hit:
     obj: str | None
     local: np.ndarray | None = None  # mean hit point in the object's own frame (mm)
     later: list[Hit] = field(default_factory=list)  # returns from deeper in the spot
+    # an interface inside the object (a wall's inner side, a liquid): the media the sound
+    # crossed inside it to get there, (material, mm) each; () for a surface facing the air
+    path: tuple[tuple[str, float], ...] = ()
 
 
 RETURN_MM = 0.3  # depth spread within the spot that still arrives as one pulse (mm)
@@ -206,28 +217,65 @@ class Scene:
         normals = np.zeros((len(origins), 3))
         owner = np.full(len(origins), -1)
         local = np.zeros((len(origins), 3))
+        face = None  # per ray: the mesh face hit (-1: none or a primitive), meshes only
+        rays = {}  # interior meshes: object index -> its local ray origins and directions
         for k, (obj, (to_local, center, d)) in enumerate(zip(self.objects, frames)):
             d = np.tile(d, (K, 1)) if K > 1 else d
             o = (origins - center) @ to_local
-            t, nl = obj.shape.local_hit(o, d)
+            by_face = getattr(obj.shape, "local_hit_faces", None)
+            if by_face is None:
+                t, nl = obj.shape.local_hit(o, d)
+            else:
+                t, nl, f = by_face(o, d)
             closer = t < best
             best = np.where(closer, t, best)
             normals = np.where(closer[:, None], nl @ to_local.T, normals)
             owner = np.where(closer, k, owner)
             local = np.where(closer[:, None], o + np.where(np.isfinite(t), t, 0)[:, None] * d,
                              local)
+            if by_face is not None or face is not None:
+                face = np.full(len(origins), -1) if face is None else face
+                face = np.where(closer, f if by_face is not None else -1, face)
+                if getattr(obj.shape, "interior", False):
+                    rays[k] = (o, d)
+        deeper = self._interiors(rays, best, owner, face) if rays else None
         return [self._returns(best[i * m:(i + 1) * m], normals[i * m:(i + 1) * m],
-                              owner[i * m:(i + 1) * m], local[i * m:(i + 1) * m], v, max_d)
+                              owner[i * m:(i + 1) * m], local[i * m:(i + 1) * m], v, max_d,
+                              None if face is None else face[i * m:(i + 1) * m],
+                              None if deeper is None else
+                              tuple(x[i * m:(i + 1) * m] for x in deeper))
                 for i in range(K)]
 
+    def _interiors(self, rays: dict, best: np.ndarray, owner: np.ndarray, face: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The surfaces behind each ray's first hit on an interior mesh: distances (mm), faces
+        and the cosine between the beam and the face's outward normal (negative where the
+        ray passes into the solid) per ray and layer (inf, -1, 0 where none)."""
+        n_layers = max(self.objects[k].shape.MAX_LAYERS for k in rays)
+        lt = np.full((len(best), n_layers), np.inf)
+        lf = np.full((len(best), n_layers), -1)
+        lc = np.zeros((len(best), n_layers))
+        for k, (o, d) in rays.items():
+            mine = (owner == k) & np.isfinite(best)
+            if not mine.any():
+                continue
+            shape = self.objects[k].shape
+            t, f = shape.layers(o[mine], d[mine], best[mine], face[mine], n_layers)
+            lt[mine], lf[mine] = t, f
+            lc[mine] = np.einsum("ijk,ik->ij", shape.face_normals(f), d[mine])
+        return lt, lf, lc
+
     def _returns(self, best: np.ndarray, normals: np.ndarray, owner: np.ndarray,
-                 local: np.ndarray, v: np.ndarray, max_d: float) -> Hit:
-        """One shot's Hit from its rays' distances (mm), normals, objects and local points."""
+                 local: np.ndarray, v: np.ndarray, max_d: float,
+                 face: np.ndarray | None = None, deeper: tuple | None = None) -> Hit:
+        """One shot's Hit from its rays' distances (mm), normals, objects and local points
+        (and, on meshes, the faces hit and the surfaces behind them)."""
         hit = np.isfinite(best) & (best < max_d)
         if not hit.any():
             return Hit(np.inf, 0.0, 0.0, None, None)
         k = np.bincount(owner[hit]).argmax()
         sel = hit & (owner == k)
+        obj = self.objects[k]
         # rays whose distances lie within RETURN_MM of each other make one return at their
         # mean distance; a spot spread over depth (a tip seen with its grazing side, a face
         # and the one behind it) makes separate returns, nearest first
@@ -240,11 +288,47 @@ class Scene:
         returns = []
         for r in groups:
             cos_i = float(np.clip(np.mean(np.abs(normals[r] @ v)), 0, 1))
+            material = obj.material if face is None else self._material(obj, face[r])
             returns.append(Hit(float(best[r].mean()), float(r.mean()), cos_i,
-                               self.objects[k].material, self.objects[k].name,
-                               local[r].mean(axis=0)))
+                               material, obj.name, local[r].mean(axis=0)))
+        if deeper is not None:
+            returns += self._inside(obj, sel, best, face, deeper, max_d)
         returns[0].later = returns[1:]
         return returns[0]
+
+    @staticmethod
+    def _material(obj: SceneObject, faces: np.ndarray) -> str:
+        """The material most of these rays' faces have (their regions' materials)."""
+        regions = getattr(obj.shape, "regions", None)
+        if regions is None or not obj.regions:
+            return obj.material
+        r = regions(faces)
+        r = r[r >= 0]
+        return obj.material_of(np.bincount(r).argmax()) if len(r) else obj.material
+
+    def _inside(self, obj: SceneObject, sel: np.ndarray, best: np.ndarray, face: np.ndarray,
+                deeper: tuple, max_d: float) -> list[Hit]:
+        """One return per surface behind the first along the rays of `sel` (a wall's inner
+        side, the far wall, a liquid), with the media the sound crossed inside the object:
+        past a face it entered, the face's region's material; past one it left, the fill."""
+        lt, lf, lc = deeper
+        out: list[Hit] = []
+        prev_t, prev_f = best, face
+        entered = np.ones(len(best), bool)  # the first surface is entered from the air
+        path: list[tuple[str, float]] = []
+        for j in range(lt.shape[1]):
+            r = sel & np.isfinite(lt[:, j]) & (lt[:, j] < max_d)
+            if not r.any():
+                break
+            inside = np.mean(entered[r]) >= 0.5
+            medium = self._material(obj, prev_f[r]) if inside else obj.fill
+            if medium is not None:
+                path = path + [(medium, float(np.mean(lt[r, j] - prev_t[r])))]
+            out.append(Hit(float(lt[r, j].mean()), float(r.mean()),
+                           float(np.clip(np.abs(lc[r, j]).mean(), 0, 1)),
+                           self._material(obj, lf[r, j]), obj.name, None, path=tuple(path)))
+            prev_t, prev_f, entered = lt[:, j], lf[:, j], lc[:, j] < 0
+        return out
 
 
 _STANDARD_NORMAL = NormalDist()

@@ -39,6 +39,9 @@ class Material:
     variability: float = 0.05  # per-shot spread of amplitude and spectrum
     roughness_oa_mm: float = 0.06  # surface/spot range scatter, Laplace scale (OA)
     roughness_us_mm: float = 0.19  # Gaussian sigma (US)
+    c_mm_us: float = 0.0      # speed of sound inside (mm/us); 0: sound does not cross it
+    us_through: float = 0.0   # share of an echo's amplitude left after crossing it there and
+    #                          back (an interface behind it: a wall's inner side, a liquid)
 
 
 #: defaults; apple is deliberately close to plastic but far more variable (paper Fig. 5). The
@@ -49,21 +52,26 @@ MATERIALS: dict[str, Material] = {
     "graphite": Material(oa=True, us=True, oa_amp=9000, oa_fc_mhz=1.6, us_amp=1500,
                          variability=0.05),
     "aluminium": Material(oa=True, us=True, oa_amp=2500, oa_fc_mhz=1.24, us_amp=7000,
-                          ring_fc_mhz=0.55, ring_gain=0.25, ring_decay_us=6.0),
+                          ring_fc_mhz=0.55, ring_gain=0.25, ring_decay_us=6.0,
+                          c_mm_us=6.32, us_through=0.08),
     "steel": Material(oa=False, us=True, us_amp=7500, ring_fc_mhz=0.75, ring_gain=0.35,
-                      ring_decay_us=8.0),
+                      ring_decay_us=8.0, c_mm_us=5.9, us_through=0.06),
     "glass": Material(oa=False, us=True, us_amp=6500, us_fc_scale=1.05, ring_fc_mhz=0.9,
-                      ring_gain=0.5, ring_decay_us=5.0),
+                      ring_gain=0.5, ring_decay_us=5.0, c_mm_us=5.64, us_through=0.1),
     "plastic": Material(oa=True, us=True, oa_amp=3500, oa_fc_mhz=0.84, us_amp=4500,
                         us_fc_scale=0.95, ring_fc_mhz=0.35, ring_gain=0.15, ring_decay_us=2.0,
-                        variability=0.10),
+                        variability=0.10, c_mm_us=2.4, us_through=0.15),
     "apple": Material(oa=True, us=True, oa_amp=3200, oa_fc_mhz=0.77, us_amp=4000,
                       us_fc_scale=0.9, ring_fc_mhz=0.35, ring_gain=0.12, ring_decay_us=1.5,
-                      variability=0.30),
+                      variability=0.30, c_mm_us=1.5, us_through=0.05),
     "paper": Material(oa=True, us=True, oa_amp=4000, oa_fc_mhz=0.60, us_amp=3000,
-                      us_fc_scale=0.8, variability=0.12),
+                      us_fc_scale=0.8, variability=0.12, c_mm_us=1.2, us_through=0.2),
     "foam": Material(oa=True, us=False, oa_amp=2000, oa_fc_mhz=0.39, oa_bw=1.0,
                      variability=0.15),
+    # a liquid filling a container (never a surface facing the air: it has no OA, and it
+    # transmits sound well); its echoes are those of the walls it touches
+    "water": Material(oa=False, us=True, us_amp=3000, c_mm_us=1.48, us_through=0.9,
+                      variability=0.05),
 }
 
 
@@ -186,6 +194,9 @@ def _add_return(x: np.ndarray, hit: Hit, model: SensorModel, t_us: np.ndarray,
     mat = model.materials.get(hit.material) if hit.material else None
     if mat is None or hit.overlap <= 0:
         return
+    if hit.path:
+        _add_interface(x, hit, mat, model, t_us, rng)
+        return
     spread = 1.0 / (1.0 + hit.d / model.spread_mm) * (1 + 10 / model.spread_mm)
     var = mat.variability
     c = model.c_mm_us
@@ -212,6 +223,40 @@ def _add_return(x: np.ndarray, hit: Hit, model: SensorModel, t_us: np.ndarray,
         echo += mat.ring_gain * (1 + rng.normal(0, var)) * ring * np.sin(
             2 * np.pi * mat.ring_fc_mhz * tau)
         x += amp * echo
+
+
+def _add_interface(x: np.ndarray, hit: Hit, mat: Material, model: SensorModel,
+                   t_us: np.ndarray, rng: np.random.Generator) -> None:
+    """Add the US echo of a surface inside an object (x in counts): it arrives later by the
+    time the sound spent crossing each medium on the way (at that medium's speed, not the
+    air's) and weaker by each medium's `us_through`. No OA: the laser is absorbed at the
+    first surface (or passes a transparent one and is not modelled further)."""
+    if not mat.us:
+        return
+    c = model.c_mm_us
+    delay, gain = 0.0, 1.0
+    for name, mm in hit.path:
+        medium = model.materials.get(name)
+        if medium is None or medium.c_mm_us <= 0:
+            return  # sound does not cross it (porous, unknown)
+        delay += 2 * mm * (1 / medium.c_mm_us - 1 / c)
+        gain *= medium.us_through
+    spread = 1.0 / (1.0 + hit.d / model.spread_mm) * (1 + 10 / model.spread_mm)
+    angle = np.degrees(np.arccos(np.clip(hit.cos_incidence, 0, 1)))
+    amp = mat.us_amp * gain * hit.overlap * spread ** 2
+    amp *= np.exp(-(angle / model.us_angle_deg) ** 2) * rng.lognormal(0, mat.variability)
+    fc = model.us_fc_mhz * mat.us_fc_scale * (1 + rng.normal(0, mat.variability / 3))
+    _add_pulse(x, t_us, model.t0_us_us + 2 * hit.d / c + delay, amp,
+               *received(model, fc, model.us_bw, "us"))
+
+
+def interface_time_us(d_mm: float, path: tuple[tuple[str, float], ...],
+                      model: SensorModel) -> float:
+    """Arrival (us after the trigger) of the US echo of a surface d mm along the beam reached
+    through `path` ((material, mm) legs inside the object), as `synthesize` places it."""
+    c = model.c_mm_us
+    return model.t0_us_us + 2 * d_mm / c + sum(
+        2 * mm * (1 / model.materials[m].c_mm_us - 1 / c) for m, mm in path)
 
 
 def to_adc(x: np.ndarray, model: SensorModel) -> np.ndarray:

@@ -2,6 +2,8 @@
 own error, materials per region, the echoes of surfaces inside an object, users' mesh files."""
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -9,7 +11,9 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dmdsm.sim.physics.mesh import EMBREE, Mesh
+from dmdsm.sim.physics.household import MESH_HOUSEHOLD
+from dmdsm.sim.physics.mesh import EMBREE, Mesh, MeshFileError, load_mesh_file, standing
+from dmdsm.sim.physics.objects import SCENES, SIZE_LIMIT_MM, bounding_size
 from dmdsm.sim.physics.scene import (
     Box,
     Cylinder,
@@ -19,6 +23,14 @@ from dmdsm.sim.physics.scene import (
     rodrigues,
     table_frame,
 )
+from dmdsm.sim.physics.signals import (
+    MATERIALS,
+    SensorModel,
+    arrival_times_us,
+    interface_time_us,
+    synthesize,
+)
+from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 SECTIONS = 256          # cylinder: segments around
 LAT, LON = 96, 192      # uv sphere: segments pole to pole, around
@@ -153,3 +165,217 @@ def test_a_scene_of_the_mesh_gives_the_same_shots(kind, theta, dx, dz, yaw, tilt
     assert hm.overlap == ha.overlap and hm.material == "plastic" and hm.obj == "o"
     assert hm.d == pytest.approx(ha.d, abs=bound / 0.3 + 1e-6)
     assert hm.cos_incidence == pytest.approx(ha.cos_incidence, abs=math.sin(normal_tol) + 1e-6)
+
+
+# ---------------------------------------------------------------- the household set of meshes
+def test_the_mesh_household_is_closed_fits_and_is_the_same_every_time():
+    assert len(MESH_HOUSEHOLD) >= 20
+    materials = set()
+    for name, make in MESH_HOUSEHOLD.items():
+        obj = make()
+        assert obj.name == name and isinstance(obj.shape, Mesh)
+        m = obj.shape.mesh
+        assert m.is_watertight and m.volume > 0, name  # closed, normals out
+        assert all(s <= lim for s, lim in zip(bounding_size(obj), SIZE_LIMIT_MM)), name
+        assert m.bounds[0, 2] == pytest.approx(0.0, abs=1e-9), name  # stands on the table
+        assert len(m.faces) < 20_000, name
+        again = make().shape.mesh
+        assert np.array_equal(m.vertices, again.vertices) and np.array_equal(m.faces,
+                                                                             again.faces)
+        materials |= {obj.material, *obj.regions.values()}
+        assert name in SCENES and SCENES[name]()[0].name == name
+    assert materials >= {"aluminium", "apple", "foam", "glass", "paper", "plastic", "steel"}
+
+
+def test_the_concave_bowl_is_hit_inside():
+    """A beam down into the bowl passes the near rim and meets the inside of the far side."""
+    (obj,) = SCENES["bowl"]()
+    down = np.array([0.0, 0.3, -1.0]) / np.linalg.norm([0.0, 0.3, -1.0])
+    t, normal, _ = obj.shape.local_hit_faces(np.array([[0.0, -10.0, 150.0]]), down[None])
+    p = np.array([0.0, -10.0, 150.0]) + t[0] * down
+    assert np.hypot(p[0], p[1]) < 80 and p[2] < 60  # inside the bowl, below its rim
+    assert normal[0] @ np.array([0, 0, 1.0]) > 0.5  # the inside faces up
+
+
+# ---------------------------------------------------------------- materials per region
+def aim(scene: Scene, point_table: np.ndarray, back_mm: float = 20.0) -> np.ndarray:
+    """The sensor position whose beam passes through a turntable point (table at 0 deg)."""
+    v = scene.v / np.linalg.norm(scene.v)
+    return scene.X_R + table_frame(scene.n) @ point_table - back_mm * v
+
+
+QUIET = dict(noise_counts=0.0, spike_prob=0.0, bang_amp=0.0)
+
+
+def energy(x, t_us, at, half=1.5):
+    return float(np.abs(x[np.abs(t_us - at) < half]).max())
+
+
+def test_oa_is_missing_on_the_glass_but_present_on_its_paper_label():
+    sc = Scene(objects=SCENES["glass_jar_labelled"]())
+    model = SensorModel(**QUIET)
+    t_us = np.arange(0, 200, 0.05)
+    seen = {}
+    for z, material in ((55.0, "paper"), (95.0, "glass"), (20.0, "glass")):
+        hit = sc.cast(aim(sc, np.array([0.0, -38.0, z])), 0.0)
+        assert hit.material == material and hit.obj == "glass_jar_labelled"
+        x = synthesize(hit, model, t_us, np.random.default_rng(2))
+        oa, us = arrival_times_us(hit.d, model)
+        seen[z] = (energy(x, t_us, oa), energy(x, t_us, us))
+    assert seen[55.0][0] > 500 and seen[95.0][0] < 1 and seen[20.0][0] < 1  # OA: label only
+    assert all(us > 500 for _, us in seen.values())  # the US echo on both
+
+
+def test_a_lid_of_another_material_is_that_material():
+    sc = Scene(objects=SCENES["jar_with_lid"]())
+    assert sc.cast(aim(sc, np.array([0.0, -38.0, 116.0])), 0.0).material == "steel"
+    assert sc.cast(aim(sc, np.array([0.0, -40.0, 60.0])), 0.0).material == "glass"
+
+
+# ---------------------------------------------------------------- what is inside
+def test_a_hollow_wall_echoes_from_its_inner_side_at_its_thickness():
+    """Paper cup, glass bottle: the surface behind the first is the wall's inner side, one
+    wall thickness deeper (along a near-normal beam), reached through the wall's material;
+    in the waveform its echo comes that many microseconds later at the wall's speed of
+    sound, and only when the object is cast through (`interior`)."""
+    objs = SCENES["glass_bottle"]()
+    sc = Scene(objects=objs)
+    hit = sc.cast(aim(sc, np.array([0.0, -35.0, 80.0])), 0.0)
+    inner = hit.later[0]
+    cos = hit.cos_incidence
+    assert inner.d - hit.d == pytest.approx(2.5 / cos, abs=0.02)
+    assert inner.path[0][0] == "glass" and inner.path[0][1] == pytest.approx(2.5 / cos,
+                                                                                abs=0.02)
+    model = SensorModel(**QUIET)
+    t_us = np.arange(0, 300, 0.01)
+    x = synthesize(hit, model, t_us, np.random.default_rng(4))
+    objs[0].shape.interior = False
+    solid = sc.cast(aim(sc, np.array([0.0, -35.0, 80.0])), 0.0)
+    assert solid.later == [] and solid.d == hit.d
+    x_solid = synthesize(solid, model, t_us, np.random.default_rng(4))
+    extra = x - x_solid  # exactly the echoes from inside (the front's draws come first)
+    expect = interface_time_us(inner.d, inner.path, model)
+    front = arrival_times_us(hit.d, model)[1]
+    assert expect - front == pytest.approx(2 * 2.5 / cos / MATERIALS["glass"].c_mm_us,
+                                           abs=1e-3)
+    near = np.abs(t_us - front) < 5
+    assert t_us[near][np.abs(extra[near]).argmax()] == pytest.approx(expect, abs=0.05)
+
+
+def test_a_liquid_inside_is_a_second_interface_the_ultrasound_sees():
+    """The glass bottle full of water: the far wall's echo comes through the water, at the
+    time the sound takes through 2 x 2.5 mm of glass and the water between; emptied (air
+    inside), that echo is not in the record."""
+    objs = SCENES["glass_bottle"]()
+    sc = Scene(objects=objs)
+    S = aim(sc, np.array([0.0, -35.0, 80.0]))
+    hit = sc.cast(S, 0.0)
+    far = hit.later[1]  # the far wall's inner side, through the water
+    media = [m for m, _ in far.path]
+    assert media == ["glass", "water"]
+    assert sum(mm for _, mm in far.path) == pytest.approx(far.d - hit.d, abs=1e-6)
+    assert far.path[1][1] == pytest.approx(65.0, abs=0.5)  # the inner diameter, about
+    model = SensorModel(**QUIET)
+    t_us = np.arange(0, 300, 0.02)
+    at = interface_time_us(far.d, far.path, model)
+    front = arrival_times_us(hit.d, model)[1]
+    assert at - front == pytest.approx(2 * (2.5 / MATERIALS["glass"].c_mm_us + 65.0 / 1.48),
+                                       rel=0.01)
+    x = synthesize(hit, model, t_us, np.random.default_rng(5))
+    assert energy(x, t_us, at) > 20
+    objs[0].fill = None
+    empty = sc.cast(S, 0.0)
+    assert [m for m, _ in empty.later[1].path] == ["glass"]  # air inside: not a medium
+    x = synthesize(empty, model, t_us, np.random.default_rng(5))
+    assert energy(x, t_us, at) < 1
+
+
+# ---------------------------------------------------------------- the truth
+def test_the_truth_gives_each_objects_surface_and_signed_distance():
+    sim = Simulation(SimConfig(scene="can_with_label"))
+    (truth,) = sim.truth_objects()
+    assert truth.name == "can_with_label" and truth.mesh.is_watertight
+    d = truth.signed_distance(np.array([[0.0, 0.0, 55.0], [0.0, -47.0, 55.0],
+                                        [0.0, -37.0, 55.0]]))
+    assert d[0] == pytest.approx(37.0, abs=0.1) and d[1] == pytest.approx(-10.0, abs=0.1)
+    assert abs(d[2]) < 0.1
+    assert truth.material_at(np.array([[0.0, -37.0, 55.0], [0.0, -37.0, 100.0]])) == [
+        "paper", "steel"]
+    sim = Simulation(SimConfig(scene="aluminium_block"))
+    (block,) = sim.truth_objects()
+    assert block.signed_distance(np.array([[0.0, 0.0, 20.0]]))[0] == pytest.approx(15.0)
+    assert set(block.face_material) == {"aluminium"}
+
+
+# ---------------------------------------------------------------- users' mesh files
+def write(tmp_path, name, mesh):
+    path = tmp_path / name
+    mesh.export(path)
+    return path
+
+
+def test_a_users_closed_mesh_loads_and_stands_on_the_table(tmp_path):
+    box = trimesh.creation.box(extents=[40.0, 30.0, 20.0])
+    for ext in ("stl", "obj", "ply", "off"):
+        m = standing(load_mesh_file(write(tmp_path, f"b.{ext}", box)))
+        assert m.is_watertight and np.allclose(m.bounds, [[-20, -15, 0], [20, 15, 20]])
+
+
+@pytest.mark.parametrize("case, says", [
+    ("text.stl", "holds no triangles"),
+    ("open.stl", "not closed (watertight)"),
+    ("huge.stl", "does not fit the scanner"),
+    ("lying.stl", "faces; at most 2000000"),
+    ("model.step", "not a mesh file this emulator reads"),
+    ("missing.stl", "no such file"),
+    ("garbage.ply", "not a readable PLY mesh"),
+])
+def test_a_file_that_cannot_be_mounted_is_one_line_saying_what_to_fix(tmp_path, case, says):
+    path = tmp_path / case
+    if case == "text.stl":
+        path.write_text("hello\n")
+    elif case == "open.stl":
+        box = trimesh.creation.box(extents=[40.0, 30.0, 20.0])
+        write(tmp_path, case, trimesh.Trimesh(box.vertices, box.faces[:-1]))
+    elif case == "huge.stl":
+        write(tmp_path, case, trimesh.creation.box(extents=[500.0, 30.0, 20.0]))
+    elif case == "lying.stl":  # a binary STL header claiming 3 billion faces: refused unread
+        path.write_bytes(b"\0" * 80 + (3_000_000_000).to_bytes(4, "little") + b"\0" * 50)
+    elif case == "model.step":
+        path.write_text("ISO-10303-21;\n")
+    elif case == "garbage.ply":
+        path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                         b"end_header\n\x01\x02")
+    with pytest.raises(MeshFileError) as e:
+        load_mesh_file(path)
+    assert says in str(e.value) and "\n" not in str(e.value)
+
+
+def test_dmdsm_sim_object_names_what_to_fix_in_one_line(tmp_path):
+    bad = tmp_path / "cup.stl"
+    box = trimesh.creation.box(extents=[40.0, 30.0, 20.0])
+    trimesh.Trimesh(box.vertices, box.faces[:-2]).export(bad)
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "sim", "--object", str(bad),
+                        "--material", "glass"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and "not closed (watertight)" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_a_users_object_is_mounted_alone_with_its_material(tmp_path):
+    from dmdsm.host.commands.errors import CliError
+    from dmdsm.host.commands.sim import user_object
+
+    path = write(tmp_path, "duck.ply", trimesh.creation.icosphere(3, radius=30.0))
+    obj = user_object(str(path), "apple")
+    sim = Simulation(SimConfig(scene="empty", objects=[obj]))
+    (truth,) = sim.truth_objects()
+    assert truth.name == "duck.ply" and truth.material == "apple"
+    assert truth.signed_distance(np.array([[0.0, 0.0, 30.0]]))[0] == pytest.approx(30.0,
+                                                                                   abs=0.2)
+    sc = sim.scene
+    hit = sc.cast(aim(sc, np.array([0.0, -30.0, 30.0])), 0.0)
+    assert hit.obj == "duck.ply" and hit.material == "apple"
+    assert hit.d == pytest.approx(20.0, abs=0.3)
+    with pytest.raises(CliError, match="not a material of the emulator"):
+        user_object(str(path), "wood")

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from .scene import Shape
+from .scene import Box, Cylinder, SceneObject, Shape, Sphere
 
 try:  # Embree when installed (a pyproject dependency); trimesh's numpy caster otherwise
     from trimesh.ray.ray_pyembree import RayMeshIntersector as _Intersector
@@ -129,6 +129,68 @@ class Mesh(Shape):
             self.mesh, np.asarray(points, float).reshape(-1, 3)), float)
 
 
+# ---------------------------------------------------------------- the truth for judging scans
+TRUTH_SECTIONS = 512  # segments around a primitive's tessellation for the truth
+
+
+def surface_mesh(shape: Shape) -> trimesh.Trimesh:
+    """The shape's surface as a closed mesh in its own frame (mm): a mesh as it is; a box
+    exactly; a cylinder or sphere finely tessellated (within r (1 - cos(pi / 512)) inside:
+    5e-4 mm at r = 30)."""
+    if isinstance(shape, Mesh):
+        return shape.mesh
+    if isinstance(shape, Box):
+        return trimesh.creation.box(extents=2 * np.asarray(shape.half, float))
+    if isinstance(shape, Cylinder):
+        return trimesh.creation.cylinder(radius=shape.radius, height=2 * shape.half_length,
+                                         sections=TRUTH_SECTIONS)
+    if isinstance(shape, Sphere):
+        return trimesh.creation.uv_sphere(radius=shape.radius,
+                                          count=[TRUTH_SECTIONS // 2, TRUTH_SECTIONS])
+    raise TypeError(f"no surface for a {type(shape).__name__}")
+
+
+@dataclass(eq=False)
+class ObjectTruth:
+    """One mounted object's true surface, for scoring a scan or a model against it: the mesh
+    in the object's own frame (mm), the pose that puts it in the turntable frame
+    (p_table = R p_object + center, before the table turns), the material of every face, and
+    what fills it."""
+
+    name: str
+    material: str
+    mesh: trimesh.Trimesh
+    center: np.ndarray
+    R: np.ndarray
+    face_material: np.ndarray  # one material name per face
+    fill: str | None = None
+
+    def to_object(self, points_table: np.ndarray) -> np.ndarray:
+        """Turntable-frame points (N x 3, mm, table at angle 0) in the object's frame."""
+        return (np.asarray(points_table, float).reshape(-1, 3) - self.center) @ self.R
+
+    def signed_distance(self, points_table: np.ndarray) -> np.ndarray:
+        """Signed distance (mm) of turntable-frame points to the surface: positive inside."""
+        return np.asarray(trimesh.proximity.signed_distance(
+            self.mesh, self.to_object(points_table)), float)
+
+    def material_at(self, points_table: np.ndarray) -> list[str]:
+        """The material of the surface nearest each turntable-frame point."""
+        _, _, face = trimesh.proximity.closest_point(self.mesh, self.to_object(points_table))
+        return [str(self.face_material[f]) for f in face]
+
+
+def object_truth(obj: SceneObject) -> ObjectTruth:
+    """The truth of one scene object (its surface, pose, materials per face, fill)."""
+    mesh = surface_mesh(obj.shape)
+    if isinstance(obj.shape, Mesh):
+        face_mat = np.array([obj.material_of(r) for r in obj.shape.face_region], dtype=object)
+    else:
+        face_mat = np.full(len(mesh.faces), obj.material, dtype=object)
+    return ObjectTruth(obj.name, obj.material, mesh, np.asarray(obj.shape.center, float),
+                       np.asarray(obj.shape.R, float), face_mat, obj.fill)
+
+
 # ---------------------------------------------------------------- users' mesh files
 MESH_FORMATS = ("stl", "obj", "ply", "off")
 MAX_FACES = 2_000_000         # faces a user's mesh may have
@@ -192,7 +254,7 @@ def load_mesh_file(path: str | os.PathLike, max_faces: int = MAX_FACES,
         raise MeshFileError(f"{p}: not a readable {kind.upper()} mesh "
                             f"({type(e).__name__}: {str(e)[:80]})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise MeshFileError(f"{p}: holds no triangles")
+        raise MeshFileError(f"{p}: holds no triangles (is it a {kind.upper()} mesh?)")
     if len(mesh.faces) > max_faces:
         raise MeshFileError(f"{p}: {len(mesh.faces)} faces; at most {max_faces} are mounted "
                             "(decimate it)")

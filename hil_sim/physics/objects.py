@@ -2,13 +2,17 @@
 
 Dimensions in mm, in the turntable frame (origin at the table centre, z up along n). The
 household set covers the seven materials of the paper's Fig. 5 with two objects each, all
-inside the scanner's 270 x 270 x 430 mm limit.
+inside the scanner's 270 x 270 x 430 mm limit; the paper's experiments use these primitives.
+The household set made of meshes (handles, necks, labels, lids, liquids) is in household.py
+and is mounted by the same scene names.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .household import MESH_HOUSEHOLD
+from .mesh import Mesh
 from .scene import Box, Cylinder, SceneObject, Sphere
 
 SIZE_LIMIT_MM = (270.0, 270.0, 430.0)  # width, depth, height the scanner accepts (paper §I)
@@ -88,7 +92,9 @@ def household(name: str) -> list[SceneObject]:
 def bounding_size(obj: SceneObject) -> tuple[float, float, float]:
     """Width, depth, height (mm) of an object's axis-aligned box in the table frame."""
     s = obj.shape
-    if isinstance(s, Box):
+    if isinstance(s, Mesh):
+        w, d, h = np.diff(s.bounds(), axis=0)[0]
+    elif isinstance(s, Box):
         w, d, h = 2 * s.half
     elif isinstance(s, Sphere):
         w = d = h = 2 * s.radius
@@ -103,4 +109,6 @@ SCENES = {
     "rig_vertical": rig_vertical,
     "aluminium_block": aluminium_block,
     **{name: (lambda n=name: household(n)) for name in HOUSEHOLD},
+    **{name: (lambda f=make: [f()]) for name, make in MESH_HOUSEHOLD.items()},
+    "empty": list,  # nothing on the table (for a user's own object: dmdsm sim --object)
 }

@@ -7,7 +7,7 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from dmdsm.marlin_patch import load_machine
 from ..boards.interface import SensorBoardInterface, StageBoardInterface
 from ..boards.sensor.core_board import SensorBoard
 from ..boards.stage.marlin import MarlinEmulator, StageFaults
+from ..physics.mesh import ObjectTruth, object_truth
 from ..physics.objects import SCENES
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise
 from ..physics.signals import SensorModel, arrival_times_us
@@ -130,7 +131,14 @@ class Simulation:
                 "temperature_c": self.model.temperature_c, "S": S.tolist(), "theta": theta,
                 "distance_mm": hit.d, "material": hit.material, "object": hit.obj,
                 "arrival_oa_us": oa, "arrival_us_us": us, "time_s": self.t,
-                "config": {k: v for k, v in asdict(self.cfg).items() if k != "objects"}}
+                "config": {f.name: getattr(self.cfg, f.name) for f in fields(self.cfg)
+                           if f.name != "objects"}}
+
+    def truth_objects(self) -> list[ObjectTruth]:
+        """Each mounted object's true surface in its own frame (mesh, signed distance,
+        material per face, fill) and its pose on the table: what a scan or a model is
+        scored against. In process only, as truth()."""
+        return [object_truth(obj) for obj in self.scene.objects]
 
     def close(self) -> None:
         """Stop what runs outside this process (the stage firmware's simavr harness)."""

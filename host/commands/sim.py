@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -15,8 +16,15 @@ import numpy as np
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register `sim`."""
     p = sub.add_parser("sim", help="run the emulator of both boards on pseudo-terminals")
-    p.add_argument("--scene", default="aluminium_block",
-                   help="objects on the turntable (--list-scenes shows them)")
+    p.add_argument("--scene", default=None,
+                   help="objects on the turntable (--list-scenes shows them; default "
+                        "aluminium_block, or nothing else beside --object)")
+    p.add_argument("--object", default=None, metavar="FILE",
+                   help="also mount this closed mesh (STL, OBJ, PLY or OFF, in mm) standing "
+                        "centred on the turntable")
+    p.add_argument("--material", default="plastic", metavar="M",
+                   help="the --object's material: aluminium, apple, foam, glass, paper, "
+                        "plastic, steel or graphite (default plastic)")
     p.add_argument("--list-scenes", action="store_true",
                    help="print the scenes (objects, materials, sizes in mm) and exit")
     p.add_argument("--positions", action="store_true",
@@ -60,8 +68,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
         return 0
     if args.speed <= 0:
         raise CliError("--speed must be positive")
+    objects = [user_object(args.object, args.material)] if args.object else []
+    if args.scene is None:
+        args.scene = "empty" if objects else "aluminium_block"
     try:
         emu = Emulator(SimConfig(scene=args.scene, seed=args.seed, faults=args.faults,
+                                 objects=objects,
                                  temperature_c=args.temperature, rep_rate_hz=args.rep_rate,
                                  sensor_link_bytes_per_s=args.sensor_link,
                                  sensor_firmware=args.sensor_firmware,
@@ -97,6 +109,27 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def user_object(path: str, material: str) -> object:
+    """A user's mesh file as a SceneObject standing centred on the table; a file that cannot
+    be mounted is one line saying what to fix (a CliError)."""
+    from dmdsm.sim.physics.mesh import Mesh, MeshFileError, load_mesh_file, standing
+    from dmdsm.sim.physics.scene import SceneObject
+    from dmdsm.sim.physics.signals import MATERIALS
+
+    from .errors import CliError
+
+    surfaces = sorted(m for m in MATERIALS if m != "water")  # water only fills containers
+    if material not in surfaces:
+        raise CliError(f"--material {material!r}: not a material of the emulator; use one of "
+                       f"{', '.join(surfaces)}")
+    try:
+        mesh = standing(load_mesh_file(path))
+    except MeshFileError as e:
+        raise CliError(str(e)) from None
+    name = os.path.basename(path)
+    return SceneObject(name, material, Mesh(center=np.zeros(3), mesh=mesh))
+
+
 def _watch_rules(sim: object, server: object) -> None:
     """Stop the emulator when the rehosted firmware breaks a rule (checked every 0.2 s)."""
     while getattr(sim.sensor, "violation", None) is None:  # type: ignore[attr-defined]
@@ -115,9 +148,18 @@ def list_scenes(scenes: dict) -> str:
         for obj in make():
             w, d, h = bounding_size(obj)
             shape = type(obj.shape).__name__.lower()
-            parts.append(f"{obj.material} {shape} {w:.1f} x {d:.1f} x {h:.1f} mm")
-        lines.append(f"{name:18s} {'; '.join(parts)}")
+            extra = [f"{m} {_region_name(obj, r)}" for r, m in sorted(obj.regions.items())]
+            extra += [f"filled with {obj.fill}"] if obj.fill else []
+            more = f" ({', '.join(extra)})" if extra else ""
+            parts.append(f"{obj.material} {shape} {w:.1f} x {d:.1f} x {h:.1f} mm{more}")
+        lines.append(f"{name:18s} {'; '.join(parts) or 'nothing on the table'}")
     return "\n".join(lines)
+
+
+def _region_name(obj: object, region: int) -> str:
+    """A mesh region's name (`region_names`), or its number."""
+    names = getattr(obj.shape, "region_names", ())  # type: ignore[attr-defined]
+    return names[region] if region < len(names) else f"region {region}"
 
 
 # where the hand pipeline puts the sensor (README "The same pipeline by hand"); the demo

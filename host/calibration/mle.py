@@ -106,14 +106,17 @@ def gauge_fix(v0: np.ndarray, n0: np.ndarray, xr0: np.ndarray, tip0: np.ndarray,
     return gauge, np.concatenate([np.zeros(4), xr0[:2], np.zeros(4), tip0, thetas])
 
 
-def _tip(pb: Problem, P: Params, scale: float) -> tuple[np.ndarray, np.ndarray]:
+def _tip(pb: Problem, P: Params, scale: float, extra: float = 0.0
+         ) -> tuple[np.ndarray, np.ndarray]:
     """Each tip center point's offset from the tip (k, 3) and its covariance: the stage
-    reading's (scaled) plus its depth variance along v."""
+    reading's (scaled) plus its depth variance (with the extra) along v."""
     X = pb.tip_S + pb.tip_d[:, None] * P.v - P.tip
-    return X, scale * pb.tip_cov_S + pb.tip_var_d[:, None, None] * np.outer(P.v, P.v)
+    vd = pb.tip_var_d + extra
+    return X, scale * pb.tip_cov_S + vd[:, None, None] * np.outer(P.v, P.v)
 
 
-def _edges(pb: Problem, P: Params, scale: float) -> Iterator[tuple[np.ndarray, ...]]:
+def _edges(pb: Problem, P: Params, scale: float, extra: float = 0.0
+           ) -> Iterator[tuple[np.ndarray, ...]]:
     """Per edge frame: the center points' offsets across the turned filament line (2-D, in
     the basis B of the plane across it), B, their stage covariances there and their full
     covariances (stage scaled plus depth)."""
@@ -126,8 +129,8 @@ def _edges(pb: Problem, P: Params, scale: float) -> Iterator[tuple[np.ndarray, .
         B = tangent_basis(li)
         perp = (rel - np.outer(rel @ li, li)) @ B
         cS = np.einsum("ai,kab,bj->kij", B, pb.edge_cov_S[sel], B)
-        yield perp, B, cS, scale * cS + pb.edge_var_d[sel, None, None] * np.outer(B.T @ P.v,
-                                                                                  B.T @ P.v)
+        vd = pb.edge_var_d[sel] + extra
+        yield perp, B, cS, scale * cS + vd[:, None, None] * np.outer(B.T @ P.v, B.T @ P.v)
 
 
 def whitened_residuals(p: np.ndarray, pb: Problem, gauge: Gauge, depth_var: tuple,
@@ -136,12 +139,11 @@ def whitened_residuals(p: np.ndarray, pb: Problem, gauge: Gauge, depth_var: tupl
     covariance (with the extra depth variances), then the table angles' against their
     readings."""
     P = gauge.unpack(p, len(pb.frames))
-    X, cov = _tip(pb, P, lateral_scale[0])
-    W = np.linalg.cholesky(np.linalg.inv(cov + depth_var[0] * np.outer(P.v, P.v)))
+    X, cov = _tip(pb, P, lateral_scale[0], depth_var[0])
+    W = np.linalg.cholesky(np.linalg.inv(cov))
     r = [np.einsum("ki,kij->kj", X, W).ravel()]
-    for perp, B, _, cov in _edges(pb, P, lateral_scale[1]):
-        W = np.linalg.cholesky(np.linalg.inv(cov + depth_var[1] * np.outer(B.T @ P.v,
-                                                                           B.T @ P.v)))
+    for perp, _, _, cov in _edges(pb, P, lateral_scale[1], depth_var[1]):
+        W = np.linalg.cholesky(np.linalg.inv(cov))
         r.append(np.einsum("ki,kij->kj", perp, W).ravel())
     r.append((P.theta_deg - np.asarray(pb.thetas)) / pb.sigma_theta_deg)
     return np.concatenate(r)
@@ -189,7 +191,8 @@ def lateral_scales(dr: DepthResiduals, n_tip: int, n_edge: int, n_frames: int
     """Factors on the tips' and the edges' lateral covariances from their chi-squares, over
     their degrees of freedom (2 per tip less v and the tip across the beam; 1 per edge point
     less 2 per frame), each with SCALE_PRIOR_DOF prior residuals at scale 1."""
-    return tuple(min(max((chi + SCALE_PRIOR_DOF) / (dof + SCALE_PRIOR_DOF), 0.01), 100.0)
+    return tuple(min(max((chi + SCALE_PRIOR_DOF) / (max(dof, 0) + SCALE_PRIOR_DOF), 0.01),
+                     100.0)
                  for chi, dof in ((dr.tip_lateral_chi2, 2 * n_tip - 4),
                                   (dr.edge_lateral_chi2, n_edge - 2 * n_frames)))
 
@@ -219,13 +222,16 @@ def fit(pb: Problem, gauge: Gauge, p_init: np.ndarray, scatter_from_residuals: b
 def covariance(f: Fit, gauge: Gauge) -> np.ndarray:
     """9x9 covariance of v, n (unit-vector components) and X_R (mm) at the solution: (J^T J)^-1
     of the whitened residuals, each parameter's std widened where the leverage-corrected
-    residuals (the HC3 sandwich) show more scatter than the model's covariance (heavy-tailed
-    surface scatter on a few high-leverage points hides in the fit), then mapped to Cartesian
-    through the tangent bases."""
+    residuals (the HC2 sandwich, r^2 / (1 - h): unbiased when the model holds) show more
+    scatter than the model's covariance (heavy-tailed surface scatter on a few
+    high-leverage points hides in the fit), then mapped to Cartesian through the tangent
+    bases. HC3's r^2 / (1 - h)^2 is a jackknife's bound, biased wide: with 4 tip frames
+    against 5 parameters of v and the tip its leverages are high and it widened v's std
+    1.3x on data where the model held (docs/calibration.md)."""
     J = f.jac
     cov_p = np.linalg.pinv(J.T @ J)  # residuals are whitened: no rescaling by s^2
     h = np.einsum("ij,jk,ik->i", J, cov_p, J)
-    meat = (J * (f.fun / np.maximum(1 - h, 1e-3))[:, None] ** 2).T @ J
+    meat = (J * (f.fun ** 2 / np.maximum(1 - h, 1e-3))[:, None]).T @ J
     widen = np.sqrt(np.maximum(np.diag(cov_p @ meat @ cov_p) /
                                np.maximum(np.diag(cov_p), 1e-300), 1.0))
     cov_p = cov_p * np.outer(widen, widen)

@@ -29,13 +29,19 @@ def load_calibration(path: Path) -> tuple[dict, str]:
     for k in ("v_std", "n_std", "X_R_std"):
         if k in cal:
             out[k] = [float(x) for x in cal[k]]
+    for k in ("v_angle_std_deg", "n_angle_std_deg"):  # absent from files before issue 30
+        if isinstance(cal.get(k), (int, float)):
+            out[k] = float(cal[k])
     out["source"] = str(path)
     return out, text
 
 
 def result_dict(r: CalibrationResult) -> dict:
-    """The JSON form `dmdsm calibrate --json` prints."""
+    """The JSON form `dmdsm calibrate --json` prints: `angle_std_deg` holds the angular std
+    (deg) of v and n, the one a unit vector's error should be read against; `std` the
+    per-component stds (X_R: mm, x and y in the table plane, z the gauge)."""
     return {"v": r.v.tolist(), "n": r.n.tolist(), "X_R": r.X_R.tolist(),
+            "angle_std_deg": dict(r.angle_std_deg),
             "std": {k: np.asarray(v).tolist() for k, v in r.std.items()},
             "rms_residual_mm": r.rms_residual_mm,
             "depth_scatter_mm": {"tip": r.tip_depth_scatter_mm, "edge": r.edge_depth_scatter_mm},
@@ -52,7 +58,10 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
     lines = ["# dmdsm scanner calibration (paper Table I layout)", "[calibration]",
              f"v = {vec(r.v)}", f"n = {vec(r.n)}", f"X_R = {vec(r.X_R)}",
              f"v_std = {vec(r.std['v'])}", f"n_std = {vec(r.std['n'])}",
-             f"X_R_std = {vec(r.std['X_R'])}", f"rms_residual_mm = {r.rms_residual_mm:.6g}",
+             f"X_R_std = {vec(r.std['X_R'])}",
+             *(f"{k}_angle_std_deg = {r.angle_std_deg[k]:.6g}" for k in ("v", "n")
+               if k in r.angle_std_deg),
+             f"rms_residual_mm = {r.rms_residual_mm:.6g}",
              f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
              f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
              f"lateral_scale = {r.lateral_scale:.6g}",

@@ -18,6 +18,9 @@ HDF5_SUFFIXES = (".h5", ".hdf5")
 FORMAT_NAME = "dmdsm-calibration-raw"
 FORMAT_VERSION = 1
 GROUP = "raw"  # one 1-D dataset per column, all the same length
+MAX_ROWS = 20_000  # raw points a file may hold: the rig procedure writes a few hundred (its
+# finest rasters ~2000), and the solve's cost grows with them (a 10^6-row file once asked for
+# 34.8 GiB after 15 s); refused while reading, before anything heavy
 
 
 def is_hdf5(path: Path) -> bool:
@@ -35,10 +38,20 @@ def _missing(path: Path, have: list[str]) -> None:
                                f"{', '.join(COLUMNS)}; see docs/calibration.md)")
 
 
+def _too_many(path: Path) -> CalibrationError:
+    return CalibrationError(
+        f"{path} has more than {MAX_ROWS} raw points (the rig procedure writes a few "
+        f"hundred): give one calibration's tip and edge steps, or split the file")
+
+
 def _read_csv(path: Path) -> dict[str, list]:
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's BOM
-            rows = list(csv.DictReader(f))
+            rows = []
+            for r in csv.DictReader(f):  # streamed: a huge file is refused at MAX_ROWS
+                if len(rows) == MAX_ROWS:
+                    raise _too_many(path)
+                rows.append(r)
     except OSError as e:
         raise CalibrationError(f"cannot read {path}: {e.strerror}") from None
     except UnicodeDecodeError:
@@ -74,12 +87,18 @@ def _read_hdf5(path: Path) -> dict[str, list]:
                                    f"(an interrupted write?): {sorted(lengths)}")
         if lengths == {0}:
             raise CalibrationError(f"{path} has no data rows")
+        if lengths.pop() > MAX_ROWS:
+            raise _too_many(path)
         return {c: [x.decode() if isinstance(x, bytes) else x for x in g[c][()].tolist()]
                 for c in COLUMNS}
 
 
-def read_raw(path: Path) -> dict[str, np.ndarray]:
-    """The raw points of a calibration data file (CSV or HDF5); extra columns are ignored."""
+def read_raw(path: Path, notes: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The raw points of a calibration data file (CSV or HDF5); extra columns are ignored.
+
+    A negative amplitude is a weak reading (noise about zero), below any threshold: it is
+    taken as 0 and, if `notes` is given, one line saying how many rows had one is appended
+    to it. More than MAX_ROWS rows are refused as they are read."""
     cols = _read_hdf5(path) if is_hdf5(path) else _read_csv(path)
     out: dict[str, np.ndarray] = {}
     for c in COLUMNS:
@@ -99,6 +118,12 @@ def read_raw(path: Path) -> dict[str, np.ndarray]:
                     f"which is not a number; fix or delete the row") from None
         out[c] = column
     _check_rows(path, out)
+    weak = out["amplitude"] < 0  # NaN compares False
+    if weak.any():
+        out["amplitude"][weak] = 0.0
+        if notes is not None:
+            notes.append(f"{path}: {int(weak.sum())} raw point(s) with a negative amplitude "
+                         f"(a weak reading) taken as 0, below any threshold")
     return out
 
 
@@ -124,7 +149,9 @@ def _check_rows(path: Path, raw: dict[str, np.ndarray]) -> None:
     bad(~np.isnan(d) & ~((d >= 0) & (d < LIMIT_MM)), "d_mm must be a distance >= 0 mm or "
         "empty (no echo)")
     a = raw["amplitude"]
-    bad(~np.isnan(a) & ~((a >= 0) & np.isfinite(a)), "amplitude must be >= 0 or empty")
+    # a negative amplitude is a weak reading (read_raw takes it as 0); only an infinite one
+    # is unusable
+    bad(np.isinf(a), "amplitude must be a finite number or empty")
     th = raw["theta_deg"]
     bad(~np.isnan(th) & ~(np.abs(th) < 1e5), "theta_deg must be an angle in degrees or empty")
 

@@ -19,7 +19,8 @@ from . import mle
 from .geometry import retract, rodrigues, same_angle, skew, tangent_basis, unit
 
 __all__ = [  # the geometry is imported from here too
-    "CalibrationData", "CalibrationError", "CalibrationResult", "SvdEstimate", "cramer_rao_bound",
+    "CalibrationData", "CalibrationError", "CalibrationResult", "SvdEstimate", "angle_std_deg",
+    "cramer_rao_bound",
     "edge_lines", "edge_points", "estimate_axis", "estimate_v", "fit_line", "mle_problem",
     "retract", "rodrigues", "same_angle", "skew", "solve", "svd_estimate", "tangent_basis",
     "tangent_errors", "unit",
@@ -161,6 +162,17 @@ class CalibrationResult:
     # factor on the tips' center points' lateral covariances (the raster model, see
     # center_points.raster_centroid_cov), from the residuals
     lateral_scale: float = 1.0
+    # unit vectors v, n: the std (deg) of the angle between estimate and truth, the root of
+    # the trace of the covariance in the tangent plane (a unit vector's error is an angle:
+    # its largest component's std is second order and says nothing)
+    angle_std_deg: dict[str, float] = field(default_factory=dict)
+
+
+def angle_std_deg(cov: np.ndarray, u: np.ndarray, i: int) -> float:
+    """RMS angle (deg) between the unit vector u and its truth, from the 3 x 3 block at
+    (i, i) of the 9 x 9 covariance: sqrt of the trace of the tangent-plane covariance."""
+    B = tangent_basis(u)
+    return float(np.degrees(np.sqrt(max(np.trace(B.T @ cov[i:i + 3, i:i + 3] @ B), 0.0))))
 
 
 def tangent_errors(result: CalibrationResult, name: str, true: np.ndarray
@@ -249,10 +261,11 @@ def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bo
     return CalibrationResult(
         p.v, p.n, p.X_R, std={"v": sd[0:3], "n": sd[3:6], "X_R": sd[6:9]}, cov=cov,
         rms_residual_mm=float(np.sqrt(np.mean(raw ** 2))), svd=svd,
-        edge_depth_scatter_mm=float(np.sqrt(fit.depth_var[1])),
-        tip_depth_scatter_mm=float(np.sqrt(fit.depth_var[0])),
+        edge_depth_scatter_mm=float(np.sqrt(max(fit.depth_var[1], 0.0))),
+        tip_depth_scatter_mm=float(np.sqrt(max(fit.depth_var[0], 0.0))),
         residuals=mle.point_residuals(raw, problem, p.theta_deg),
-        lateral_scale=float(fit.lateral_scale[0]))
+        lateral_scale=float(fit.lateral_scale[0]),
+        angle_std_deg={"v": angle_std_deg(cov, p.v, 0), "n": angle_std_deg(cov, p.n, 3)})
 
 
 def cramer_rao_bound(design: CalibrationData) -> np.ndarray:

@@ -65,6 +65,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spot-radius", type=float, default=0.25,
                    help="laser spot radius at the filament (mm): where on the filament's "
                         "front the ranged depth lies (docs/calibration.md)")
+    p.add_argument("--table-std", type=float, default=0.01, metavar="DEG",
+                   help="std of the turntable's angle reading (deg; default 0.01): two edge "
+                        "frames cannot tell it from the filament's position, so it is yours "
+                        "to give")
     p.add_argument("-o", "--output", type=Path, default=Path("calibration.toml"),
                    help="calibration to write (default ./calibration.toml)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -162,6 +166,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """Scan a step, or solve from a data file; save the TOML, print Table I with +- std."""
     from .errors import CliError, check_output
 
+    if not args.table_std > 0:  # NaN too
+        raise CliError(f"--table-std must be a positive angle in degrees, not {args.table_std}")
     if args.step != "tip":
         check_output(args.output)  # before the edge step measures anything
     if args.step is not None:
@@ -174,9 +180,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 print(json.dumps({"data": str(args.data), "step": "tip"}))
             return 0
     source = args.from_data or args.data
+    notes: list[str] = []
     try:
-        data = center_points(read_raw(source), args.modality, args.threshold,
-                             args.radius, spot_radius_mm=args.spot_radius)
+        raw = read_raw(source, notes)
+        for note in notes:  # one line each, e.g. how many weak (negative) amplitudes
+            print(note, file=sys.stderr)
+        data = center_points(raw, args.modality, args.threshold, args.radius,
+                             sigma_theta_deg=args.table_std, spot_radius_mm=args.spot_radius)
         r = solve(data)
     except CalibrationError as e:
         raise CliError(str(e)) from None
@@ -189,11 +199,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(json.dumps({**result_dict(r), "file": str(args.output),
                           "previous": str(previous) if previous else None}))
         return 0
-    for name in ("v", "n", "X_R"):
-        val, sd = getattr(r, name), r.std[name]
-        unit = " (mm)" if name == "X_R" else ""
-        print(f"{name + unit:<9} [" + "; ".join(f"{a:9.4f} ± {b:.4f}" for a, b in zip(val, sd))
-              + "]")
+    for name in ("v", "n"):  # a unit vector's error is an angle
+        print(f"{name:<9} [" + "; ".join(f"{a:9.4f}" for a in getattr(r, name))
+              + f"] ± {r.angle_std_deg[name]:.4f} deg")
+    print("X_R (mm)  [" + "; ".join(f"{a:9.4f} ± {b:.4f}" for a, b in zip(r.X_R[:2],
+                                                                     r.std["X_R"][:2]))
+          + f"; {r.X_R[2]:9.4f}] (z = 0: the gauge)")
     print(f"rms residual {r.rms_residual_mm * 1000:.1f} um; depth scatter beyond the raw "
           f"points' spread: tips {r.tip_depth_scatter_mm * 1000:.0f} um, edges "
           f"{r.edge_depth_scatter_mm * 1000:.0f} um; saved {args.output}{kept}")

@@ -219,18 +219,11 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     r = json.loads(d.run("calibrate", "--step", "edge", *d.ports, "--ranging",
                          str(d.out / "ranging.json"), "--data", str(data), "--at",
                          f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0", "-o", str(cal), "--json", *q))
-    rows = []
-    for k in ("v", "n", "X_R"):
-        est, sd, true = np.array(r[k]), np.array(r["std"][k]), tr[k]
-        rows.append([k + (" (mm)" if k == "X_R" else ""),
-                     "; ".join(f"{a:.4f} ± {b:.4f}" for a, b in zip(est, sd)),
-                     "; ".join(f"{a:.4f}" for a in true),
-                     "; ".join(f"{(a - b) / s:+.1f}" if s > 0 else "-"
-                               for a, b, s in zip(est, true, sd))])
-    sec.table(["parameter", "estimate ± std", "emulator truth (Table I)", "error / std"], rows)
     ang = {k: float(np.degrees(np.arccos(np.clip(np.dot(r[k], tr[k]), -1, 1))))
            for k in ("v", "n")}
     dxr = float(np.linalg.norm(np.array(r["X_R"][:2]) - tr["X_R"][:2]))
+    sec.table(["parameter", "estimate ± std", "emulator truth (Table I)", "error", "error / std"],
+              _rig_rows(r, tr, ang))
     sec.text.append(f"Errors: v {ang['v']:.3f} deg, n {ang['n']:.3f} deg, X_R {dxr:.3f} mm "
                     f"(in the table plane); rms residual {r['rms_residual_mm'] * 1e3:.1f} um; "
                     f"raw points in {data.name}, result in {cal.name}.")
@@ -241,6 +234,26 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     sec.figures.append((d.out / "fig2_rig.png", "Response amplitude over the tip frames' "
                         "rasters and the edge frames' sweeps (like the paper's Fig. 2)"))
     return sec, r
+
+
+def _rig_rows(r: dict, tr: dict, ang: dict[str, float]) -> list[list[str]]:
+    """The calibration table's rows: the unit vectors v, n with their angle to the truth
+    against their angular std (deg; a unit vector's error is an angle: its main component's
+    std is second order, so a per-component error / std says nothing); X_R in the table
+    plane (x, y mm; z = 0 is the gauge) per component."""
+    rows = []
+    for k in ("v", "n"):
+        sd = r.get("angle_std_deg", {}).get(k, 0.0)
+        rows.append([k, "[" + "; ".join(f"{a:.4f}" for a in r[k]) + f"] ± {sd:.4f} deg",
+                     "; ".join(f"{a:.4f}" for a in tr[k]), f"{ang[k]:.4f} deg (angle)",
+                     f"{ang[k] / sd:.1f}" if sd > 0 else "-"])
+    est, sd, true = np.array(r["X_R"][:2]), np.array(r["std"]["X_R"][:2]), tr["X_R"][:2]
+    rows.append(["X_R (x, y mm)", "; ".join(f"{a:.4f} ± {b:.4f}" for a, b in zip(est, sd)),
+                 "; ".join(f"{a:.4f}" for a in true),
+                 "; ".join(f"{a - b:+.4f}" for a, b in zip(est, true)),
+                 "; ".join(f"{(a - b) / s:+.1f}" if s > 0 else "-"
+                           for a, b, s in zip(est, true, sd))])
+    return rows
 
 
 def stage_block(d: Demo) -> Section:

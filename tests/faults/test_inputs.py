@@ -77,7 +77,7 @@ def rig_rows(tmp_path):
     ("d_mm", "-3", "d_mm must be a distance"),
     ("step", "7", "step must be tip or edge"),
     ("frame", "1.5", "frame must be a whole number"),
-    ("amplitude", "-inf", "amplitude must be >= 0"),
+    ("amplitude", "-inf", "amplitude must be a finite number"),
     ("sx_mm", "abc", "not a number"),
 ])
 def test_a_bad_rig_row_is_named(tmp_path, column, value, words):

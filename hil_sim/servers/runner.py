@@ -8,6 +8,7 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,11 +17,13 @@ from dmdsm.marlin_patch import load_machine
 from ..boards.interface import SensorBoardInterface, StageBoardInterface
 from ..boards.sensor.core_board import SensorBoard
 from ..boards.stage.marlin import MarlinEmulator, StageFaults
-from ..physics.mesh import ObjectTruth, object_truth
 from ..physics.objects import SCENES
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise
 from ..physics.signals import SensorModel, arrival_times_us
 from .faults import FaultyChannel, LinkFaults, parse_faults
+
+if TYPE_CHECKING:
+    from ..physics.mesh import ObjectTruth
 
 STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
 
@@ -138,6 +141,8 @@ class Simulation:
         """Each mounted object's true surface in its own frame (mesh, signed distance,
         material per face, fill) and its pose on the table: what a scan or a model is
         scored against. In process only, as truth()."""
+        from ..physics.mesh import object_truth  # trimesh only when asked
+
         return [object_truth(obj) for obj in self.scene.objects]
 
     def close(self) -> None:

@@ -1,6 +1,7 @@
 """hil_sim meshes: tessellated primitives ray-cast like the analytic ones within the tessellation's
 own error, materials per region, the echoes of surfaces inside an object, users' mesh files."""
 
+import json
 import math
 import subprocess
 import sys
@@ -12,7 +13,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dmdsm.sim.physics.household import MESH_HOUSEHOLD
-from dmdsm.sim.physics.mesh import EMBREE, Mesh, MeshFileError, load_mesh_file, standing
+from dmdsm.sim.physics.mesh import (
+    EMBREE,
+    Mesh,
+    MeshFileError,
+    load_mesh_file,
+    object_truth,
+    standing,
+)
+from dmdsm.sim.physics.mesh import user_object as user_object_physics
 from dmdsm.sim.physics.objects import MESH_SCENES, SCENES, SIZE_LIMIT_MM, bounding_size
 from dmdsm.sim.physics.scene import (
     Box,
@@ -377,5 +386,35 @@ def test_a_users_object_is_mounted_alone_with_its_material(tmp_path):
     hit = sc.cast(aim(sc, np.array([0.0, -30.0, 30.0])), 0.0)
     assert hit.obj == "duck.ply" and hit.material == "apple"
     assert hit.d == pytest.approx(20.0, abs=0.3)
-    with pytest.raises(CliError, match="not a material of the emulator"):
+    with pytest.raises(CliError, match="material 'wood' is not one of the emulator's"):
         user_object(str(path), "wood")
+
+
+def test_a_users_object_is_posed_and_takes_a_region_map(tmp_path):
+    """A 20 x 20 x 100 mm bar (along z in its file) tilted 90 deg about x and turned 90 deg
+    lies along the table's x; the faces listed in the region map (those facing -x in the
+    file, which now face -y, the sensor) are paper, the rest glass."""
+    bar = trimesh.creation.box(extents=[20.0, 20.0, 100.0])
+    path = write(tmp_path, "bar.stl", bar)
+    faces = [int(i) for i in np.flatnonzero(load_mesh_file(path).face_normals[:, 0] < -0.9)]
+    regions = tmp_path / "regions.json"
+    regions.write_text(json.dumps({"paper": faces}))
+    obj = user_object_physics(path, "glass", yaw_deg=90.0, tilt_deg=90.0, region_map=regions)
+    assert bounding_size(obj) == pytest.approx((100.0, 20.0, 20.0), abs=1e-9)
+    assert obj.shape.bounds()[0, 2] == pytest.approx(0.0, abs=1e-9)
+    sc = Scene(objects=[obj])
+    hit = sc.cast(aim(sc, np.array([0.0, -10.0, 10.0])), 0.0)
+    assert hit.material == "paper" and hit.d == pytest.approx(20.0, abs=0.05)
+    assert sc.cast(aim(sc, np.array([0.0, -10.0, 25.0])), 0.0).obj is None  # 20 mm tall
+    truth = object_truth(obj)
+    assert truth.material_at(np.array([[0.0, -10.0, 10.0], [50.0, 0.0, 10.0]])) == [
+        "paper", "glass"]
+    with pytest.raises(MeshFileError, match="names faces outside 0..11"):
+        regions.write_text(json.dumps({"paper": [12]}))
+        user_object_physics(path, "glass", region_map=regions)
+    with pytest.raises(MeshFileError, match="'wood' is not a material"):
+        regions.write_text(json.dumps({"wood": [1]}))
+        user_object_physics(path, "glass", region_map=regions)
+    with pytest.raises(MeshFileError, match="more than the scanner's"):
+        write(tmp_path, "long.stl", trimesh.creation.box(extents=[20.0, 20.0, 400.0]))
+        user_object_physics(tmp_path / "long.stl", "glass", tilt_deg=90.0)

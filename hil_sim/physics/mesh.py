@@ -279,3 +279,82 @@ def standing(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     lo, hi = m.bounds
     m.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
     return m
+
+
+MAX_REGION_MAP_BYTES = 64 * 2**20  # a region map's JSON (face lists of a 2M-face mesh fit)
+
+
+def load_region_map(path: str | os.PathLike, n_faces: int, known: set[str]
+                    ) -> tuple[np.ndarray, dict[int, str]]:
+    """A region map: a JSON object {material: [face index, ...], ...} (faces numbered from 0
+    in the mesh file's order); faces not listed keep the object's material. Returns the face
+    regions (1, 2, ... in the order given; 0 elsewhere) and region -> material. Raises
+    MeshFileError with one line saying what to fix."""
+    import json
+
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise MeshFileError(f"{p}: no such region map")
+    if os.path.getsize(p) > MAX_REGION_MAP_BYTES:
+        raise MeshFileError(f"{p}: a region map of at most {MAX_REGION_MAP_BYTES // 2**20} MiB "
+                            "is read")
+    try:
+        with open(p, "rb") as fh:
+            doc = json.loads(fh.read())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise MeshFileError(f"{p}: not JSON ({str(e)[:60]})") from None
+    if not isinstance(doc, dict) or not doc:
+        raise MeshFileError(f'{p}: a region map is a JSON object such as {{"paper": [0, 1, 2]}}')
+    face_region = np.zeros(n_faces, int)
+    regions: dict[int, str] = {}
+    for k, (material, faces) in enumerate(doc.items(), start=1):
+        if material not in known:
+            raise MeshFileError(f"{p}: {material!r} is not a material of the emulator; use "
+                                f"one of {', '.join(sorted(known))}")
+        if not isinstance(faces, list) or not all(
+                isinstance(f, int) and not isinstance(f, bool) for f in faces):
+            raise MeshFileError(f"{p}: {material!r} must list face numbers (integers)")
+        idx = np.asarray(faces, int)
+        if len(idx) and (idx.min() < 0 or idx.max() >= n_faces):
+            raise MeshFileError(f"{p}: {material!r} names faces outside 0..{n_faces - 1}")
+        face_region[idx] = k
+        regions[k] = material
+    return face_region, regions
+
+
+def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
+                tilt_deg: float = 0.0, region_map: str | os.PathLike | None = None,
+                limit_mm: tuple[float, float, float] = (270.0, 270.0, 430.0)) -> SceneObject:
+    """A user's mesh file (load_mesh_file) as a SceneObject standing on the table's centre:
+    turned by yaw about the table's normal after tilting it by tilt about the table's x axis
+    (deg), its lowest point on the table; a region map (load_region_map) gives parts other
+    materials. Raises MeshFileError with one line saying what to fix."""
+    from .scene import rodrigues
+    from .signals import MATERIALS
+
+    known = {m for m in MATERIALS if m != "water"}  # water only fills containers
+    if material not in known:
+        raise MeshFileError(f"material {material!r} is not one of the emulator's; use one of "
+                            f"{', '.join(sorted(known))}")
+    if not (np.isfinite(yaw_deg) and np.isfinite(tilt_deg) and abs(tilt_deg) <= 180):
+        raise MeshFileError("yaw and tilt are angles in degrees (tilt within -180..180)")
+    mesh = standing(load_mesh_file(path, limit_mm=limit_mm))
+    face_region, regions = (None, {}) if region_map is None else load_region_map(
+        region_map, len(mesh.faces), known)
+    R = rodrigues(np.array([0, 0, 1.0]), np.radians(yaw_deg)) @ rodrigues(
+        np.array([1.0, 0, 0]), np.radians(tilt_deg))
+    centroid = mesh.bounds.mean(axis=0)
+    turned = (mesh.vertices - centroid) @ R.T
+    ext = np.ptp(turned, axis=0)
+    if any(e > lim for e, lim in zip(ext, limit_mm)):
+        raise MeshFileError(f"{os.fspath(path)}: tilted by {tilt_deg:g} deg it is "
+                            f"{ext[0]:.1f} x {ext[1]:.1f} x {ext[2]:.1f} mm, more than the "
+                            f"scanner's {limit_mm[0]:g} x {limit_mm[1]:g} x {limit_mm[2]:g} mm")
+    # p_table = R (p - centroid) + center: centred on the axis, lowest point at z = 0
+    lo, hi = turned.min(axis=0), turned.max(axis=0)
+    center = -np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    mesh = mesh.copy()
+    mesh.apply_translation(-centroid)
+    shape = Mesh(center=center, R=R, mesh=mesh, face_region=face_region,
+                 region_names=("object", *(regions[k] for k in sorted(regions))))
+    return SceneObject(os.path.basename(os.fspath(path)), material, shape, regions=regions)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import sys
 import threading
@@ -25,6 +24,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--material", default="plastic", metavar="M",
                    help="the --object's material: aluminium, apple, foam, glass, paper, "
                         "plastic, steel or graphite (default plastic)")
+    p.add_argument("--regions", default=None, metavar="JSON",
+                   help='the --object\'s parts of other materials: {"paper": [face, ...]} '
+                        "with faces numbered from 0 in the mesh file's order")
+    p.add_argument("--yaw", type=float, default=0.0,
+                   help="turn the --object about the table's axis (deg)")
+    p.add_argument("--tilt", type=float, default=0.0,
+                   help="tilt the --object about the table's x axis before the yaw (deg)")
     p.add_argument("--list-scenes", action="store_true",
                    help="print the scenes (objects, materials, sizes in mm) and exit")
     p.add_argument("--positions", action="store_true",
@@ -68,7 +74,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         return 0
     if args.speed <= 0:
         raise CliError("--speed must be positive")
-    objects = [user_object(args.object, args.material)] if args.object else []
+    objects = [user_object(args.object, args.material, args.yaw, args.tilt, args.regions)
+               ] if args.object else []
     if args.scene is None:
         args.scene = "empty" if objects else "aluminium_block"
     try:
@@ -109,25 +116,20 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
-def user_object(path: str, material: str) -> object:
-    """A user's mesh file as a SceneObject standing centred on the table; a file that cannot
-    be mounted is one line saying what to fix (a CliError)."""
-    from dmdsm.sim.physics.mesh import Mesh, MeshFileError, load_mesh_file, standing
-    from dmdsm.sim.physics.scene import SceneObject
-    from dmdsm.sim.physics.signals import MATERIALS
+def user_object(path: str, material: str, yaw: float = 0.0, tilt: float = 0.0,
+                regions: str | None = None) -> object:
+    """A user's mesh file as a SceneObject standing on the table's centre (yaw, tilt in deg;
+    a region map JSON gives parts other materials); a file that cannot be mounted is one
+    line saying what to fix (a CliError)."""
+    from dmdsm.sim.physics.mesh import MeshFileError
+    from dmdsm.sim.physics.mesh import user_object as mount
 
     from .errors import CliError
 
-    surfaces = sorted(m for m in MATERIALS if m != "water")  # water only fills containers
-    if material not in surfaces:
-        raise CliError(f"--material {material!r}: not a material of the emulator; use one of "
-                       f"{', '.join(surfaces)}")
     try:
-        mesh = standing(load_mesh_file(path))
+        return mount(path, material, yaw, tilt, regions)
     except MeshFileError as e:
         raise CliError(str(e)) from None
-    name = os.path.basename(path)
-    return SceneObject(name, material, Mesh(center=np.zeros(3), mesh=mesh))
 
 
 def _watch_rules(sim: object, server: object) -> None:

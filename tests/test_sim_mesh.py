@@ -12,6 +12,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from dmdsm.protocol import FrameDecoder, Message, encode_frame
 from dmdsm.sim.physics.household import MESH_HOUSEHOLD
 from dmdsm.sim.physics.mesh import (
     EMBREE,
@@ -418,3 +419,38 @@ def test_a_users_object_is_posed_and_takes_a_region_map(tmp_path):
     with pytest.raises(MeshFileError, match="more than the scanner's"):
         write(tmp_path, "long.stl", trimesh.creation.box(extents=[20.0, 20.0, 400.0]))
         user_object_physics(tmp_path / "long.stl", "glass", tilt_deg=90.0)
+
+
+def test_the_emulated_board_streams_oa_on_the_label_and_none_on_the_glass():
+    """Through the firmware core and the protocol, as a user sees it: the stage parked in
+    front of the jar's paper label, then of its bare glass above it; one 12-shot average each."""
+    sim = Simulation(SimConfig(scene="glass_jar_labelled", seed=1))
+    dec = FrameDecoder()
+
+    def run(seconds: float, step: float = 0.01) -> list:
+        out = []
+        for _ in range(round(seconds / step)):
+            sim.advance(step)
+            sim.read("stage")
+            out += [m for m in dec.feed(sim.read("sensor")) if isinstance(m, Message)]
+        return out
+
+    sim.write("stage", b"G28\n")
+    run(12.0, 0.05)
+    sim.write("sensor", encode_frame(Message(
+        "set_config", seq=1, n_samples=1024, sample_rate_div=1, n_average=12, pretrigger=64,
+        trigger_edge=0, modality=0, sample_format=0, trigger_timeout_ms=0)))
+    seen = {}
+    for seq, z in ((2, 55), (3, 95)):
+        sim.write("stage", f"G1 X235 Y230 Z{z} F12000\n".encode())
+        run(3.0, 0.05)
+        truth = sim.truth()
+        sim.write("sensor", encode_frame(Message("arm", seq=seq, n_shots=1)))
+        (wave,) = [m for m in run(0.2) if m.name == "waveform"]
+        x = np.asarray(wave.fields["samples"], float)
+        x -= np.median(x)
+        t_us = (np.arange(len(x)) - 64) * 0.3  # 3.333 MS/s after the pretrigger samples
+        seen[truth["material"]] = [float(np.abs(x[np.abs(t_us - truth[k]) < 2]).max())
+                                   for k in ("arrival_oa_us", "arrival_us_us")]
+    assert seen["paper"][0] > 1000 and seen["glass"][0] < 100  # OA: on the label only
+    assert seen["paper"][1] > 300 and seen["glass"][1] > 300   # the echo on both

@@ -254,7 +254,7 @@ def load_mesh_file(path: str | os.PathLike, max_faces: int = MAX_FACES,
         raise MeshFileError(f"{p}: not a readable {kind.upper()} mesh "
                             f"({type(e).__name__}: {str(e)[:80]})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise MeshFileError(f"{p}: holds no triangles (is it a {kind.upper()} mesh?)")
+        raise MeshFileError(f"{p}: holds no triangles (is it really a {kind.upper()} file?)")
     if len(mesh.faces) > max_faces:
         raise MeshFileError(f"{p}: {len(mesh.faces)} faces; at most {max_faces} are mounted "
                             "(decimate it)")

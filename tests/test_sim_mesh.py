@@ -273,9 +273,9 @@ def test_a_hollow_wall_echoes_from_its_inner_side_at_its_thickness():
 
 
 def test_a_liquid_inside_is_a_second_interface_the_ultrasound_sees():
-    """The glass bottle full of water: the far wall's echo comes through the water, at the
-    time the sound takes through 2 x 2.5 mm of glass and the water between; emptied (air
-    inside), that echo is not in the record."""
+    """The glass bottle with water to 150 mm: below that the far wall's echo comes through
+    the water, at the time the sound takes through 2 x 2.5 mm of glass and the water between;
+    above it, or emptied, the sound crosses air and that echo is not in the record."""
     objs = SCENES["glass_bottle"]()
     sc = Scene(objects=objs)
     S = aim(sc, np.array([0.0, -35.0, 80.0]))
@@ -293,6 +293,8 @@ def test_a_liquid_inside_is_a_second_interface_the_ultrasound_sees():
                                        rel=0.01)
     x = synthesize(hit, model, t_us, np.random.default_rng(5))
     assert energy(x, t_us, at) > 20
+    above = sc.cast(aim(sc, np.array([0.0, -35.0, 155.0])), 0.0)  # above the water's level
+    assert [m for m, _ in above.later[1].path] == ["glass"]
     objs[0].fill = None
     empty = sc.cast(S, 0.0)
     assert [m for m, _ in empty.later[1].path] == ["glass"]  # air inside: not a medium

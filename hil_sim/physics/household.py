@@ -61,11 +61,13 @@ def _regions_by(mesh: trimesh.Trimesh, rule: Callable[[np.ndarray, np.ndarray], 
 
 def _obj(name: str, material: str, mesh: trimesh.Trimesh, regions: dict[int, str] | None = None,
          face_region: np.ndarray | None = None, fill: str | None = None,
-         interior: bool = False, names: tuple[str, ...] = ()) -> SceneObject:
+         interior: bool = False, names: tuple[str, ...] = (),
+         fill_level: float = np.inf) -> SceneObject:
     """A SceneObject of a mesh standing centred on the table (its origin at the table's)."""
     shape = Mesh(center=np.zeros(3), mesh=mesh, face_region=face_region, region_names=names,
                  interior=interior)
-    return SceneObject(name, material, shape, regions=dict(regions or {}), fill=fill)
+    return SceneObject(name, material, shape, regions=dict(regions or {}), fill=fill,
+                       fill_level=fill_level)
 
 
 def _bumpy(mesh: trimesh.Trimesh, amp: float, seed: int, centre_z: float) -> trimesh.Trimesh:
@@ -98,10 +100,12 @@ def mug() -> SceneObject:
 
 
 def glass_bottle() -> SceneObject:
-    """Glass bottle with shoulder and neck, 70 mm across, 250 mm tall, filled with water."""
+    """Glass bottle with shoulder and neck, 70 mm across, 250 mm tall, 2.5 mm wall, water up
+    to 150 mm."""
     outer = [(0, 0), (35, 0), (35, 160), (30, 180), (16, 200), (13, 215), (13, 250),
              (11, 250), (11, 215), (14, 200), (28, 180), (32.5, 160), (32.5, 4), (0, 4)]
-    return _obj("glass_bottle", "glass", _revolve(outer), fill="water", interior=True)
+    return _obj("glass_bottle", "glass", _revolve(outer), fill="water", interior=True,
+                fill_level=150.0)
 
 
 def plastic_bottle_neck() -> SceneObject:

@@ -155,7 +155,7 @@ class ObjectTruth:
     """One mounted object's true surface, for scoring a scan or a model against it: the mesh
     in the object's own frame (mm), the pose that puts it in the turntable frame
     (p_table = R p_object + center, before the table turns), the material of every face, and
-    what fills it."""
+    what fills it and how high."""
 
     name: str
     material: str
@@ -164,6 +164,7 @@ class ObjectTruth:
     R: np.ndarray
     face_material: np.ndarray  # one material name per face
     fill: str | None = None
+    fill_level: float = np.inf  # mm, height in the object's frame the fill reaches
 
     def to_object(self, points_table: np.ndarray) -> np.ndarray:
         """Turntable-frame points (N x 3, mm, table at angle 0) in the object's frame."""
@@ -188,7 +189,7 @@ def object_truth(obj: SceneObject) -> ObjectTruth:
     else:
         face_mat = np.full(len(mesh.faces), obj.material, dtype=object)
     return ObjectTruth(obj.name, obj.material, mesh, np.asarray(obj.shape.center, float),
-                       np.asarray(obj.shape.R, float), face_mat, obj.fill)
+                       np.asarray(obj.shape.R, float), face_mat, obj.fill, obj.fill_level)
 
 
 # ---------------------------------------------------------------- users' mesh files

@@ -133,13 +133,15 @@ class Sphere(Shape):
 class SceneObject:
     """A shape standing on the turntable; `name` identifies it. `material` is its surface's;
     a mesh's regions may have others (`regions`: region number -> material, e.g. a paper
-    label on a glass jar), and `fill` is what fills its cavities (a liquid; None: air)."""
+    label on a glass jar), and `fill` is what fills its cavities (a liquid; None: air) up to
+    `fill_level` (mm, height in the shape's own frame; above it, air)."""
 
     name: str
     material: str
     shape: Shape
     regions: dict[int, str] = field(default_factory=dict)
     fill: str | None = None
+    fill_level: float = math.inf
 
     def material_of(self, region: int) -> str:
         """The material of a region of the shape's faces (the object's own where unnamed)."""
@@ -247,14 +249,16 @@ class Scene:
                 for i in range(K)]
 
     def _interiors(self, rays: dict, best: np.ndarray, owner: np.ndarray, face: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The surfaces behind each ray's first hit on an interior mesh: distances (mm), faces
         and the cosine between the beam and the face's outward normal (negative where the
-        ray passes into the solid) per ray and layer (inf, -1, 0 where none)."""
+        ray passes into the solid) per ray and layer (inf, -1, 0 where none), and the height
+        (mm, object frame) of the first hit and of each layer's."""
         n_layers = max(self.objects[k].shape.MAX_LAYERS for k in rays)
         lt = np.full((len(best), n_layers), np.inf)
         lf = np.full((len(best), n_layers), -1)
         lc = np.zeros((len(best), n_layers))
+        lz = np.zeros((len(best), n_layers + 1))
         for k, (o, d) in rays.items():
             mine = (owner == k) & np.isfinite(best)
             if not mine.any():
@@ -263,7 +267,9 @@ class Scene:
             t, f = shape.layers(o[mine], d[mine], best[mine], face[mine], n_layers)
             lt[mine], lf[mine] = t, f
             lc[mine] = np.einsum("ijk,ik->ij", shape.face_normals(f), d[mine])
-        return lt, lf, lc
+            ts = np.column_stack([best[mine], np.where(np.isfinite(t), t, 0)])
+            lz[mine] = o[mine, 2:3] + ts * d[mine, 2:3]  # heights in the object's frame
+        return lt, lf, lc, lz
 
     def _returns(self, best: np.ndarray, normals: np.ndarray, owner: np.ndarray,
                  local: np.ndarray, v: np.ndarray, max_d: float,
@@ -310,8 +316,9 @@ class Scene:
                 deeper: tuple, max_d: float) -> list[Hit]:
         """One return per surface behind the first along the rays of `sel` (a wall's inner
         side, the far wall, a liquid), with the media the sound crossed inside the object:
-        past a face it entered, the face's region's material; past one it left, the fill."""
-        lt, lf, lc = deeper
+        past a face it entered, the face's region's material; past one it left, the fill
+        (below the fill level; air above it)."""
+        lt, lf, lc, lz = deeper
         out: list[Hit] = []
         prev_t, prev_f = best, face
         entered = np.ones(len(best), bool)  # the first surface is entered from the air
@@ -321,7 +328,8 @@ class Scene:
             if not r.any():
                 break
             inside = np.mean(entered[r]) >= 0.5
-            medium = self._material(obj, prev_f[r]) if inside else obj.fill
+            wet = np.mean(lz[r, j]) < obj.fill_level  # where the ray left the solid
+            medium = self._material(obj, prev_f[r]) if inside else (obj.fill if wet else None)
             if medium is not None:
                 path = path + [(medium, float(np.mean(lt[r, j] - prev_t[r])))]
             out.append(Hit(float(lt[r, j].mean()), float(r.mean()),

@@ -151,7 +151,8 @@ def list_scenes(scenes: dict) -> str:
             w, d, h = bounding_size(obj)
             shape = type(obj.shape).__name__.lower()
             extra = [f"{m} {_region_name(obj, r)}" for r, m in sorted(obj.regions.items())]
-            extra += [f"filled with {obj.fill}"] if obj.fill else []
+            level = f" to {obj.fill_level:g} mm" if np.isfinite(obj.fill_level) else ""
+            extra += [f"filled with {obj.fill}{level}"] if obj.fill else []
             more = f" ({', '.join(extra)})" if extra else ""
             parts.append(f"{obj.material} {shape} {w:.1f} x {d:.1f} x {h:.1f} mm{more}")
         lines.append(f"{name:18s} {'; '.join(parts) or 'nothing on the table'}")

@@ -90,12 +90,15 @@ def cmd_sim(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     sim, server = emu.sim, emu.server
     ports = {"sensor": emu.sensor, "stage": emu.stage}
+    mounted = "".join(f" + {o.name} ({o.material})" for o in objects)
     if args.json:
         print(json.dumps({"sensor": ports["sensor"], "stage": ports["stage"],
-                          "scene": args.scene, "seed": args.seed}), flush=True)
+                          "scene": args.scene, "seed": args.seed,
+                          **({"object": args.object} if args.object else {})}), flush=True)
     else:
         print(f"sensor board: {ports['sensor']}\nstage board:  {ports['stage']}\n"
-              f"scene {args.scene}, seed {args.seed}, speed x{args.speed:g}; Ctrl-C stops",
+              f"scene {args.scene}{mounted}, seed {args.seed}, speed x{args.speed:g}; "
+              "Ctrl-C stops",
               flush=True)
     # Ctrl-C and SIGTERM set the stop flag rather than raise: an exception raised inside a
     # unicorn MMIO callback (the rehosted board) is swallowed by ctypes and the stop was lost

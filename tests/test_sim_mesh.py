@@ -391,6 +391,16 @@ def test_a_users_object_is_mounted_alone_with_its_material(tmp_path):
     assert hit.d == pytest.approx(20.0, abs=0.3)
     with pytest.raises(CliError, match="material 'wood' is not one of the emulator's"):
         user_object(str(path), "wood")
+    assert sc.cast(aim(sc, np.array([0.0, -30.0, 30.0])), 0.0).later == []  # solid
+    cup = trimesh.boolean.difference([trimesh.creation.cylinder(radius=30.0, height=60.0),
+                                      trimesh.creation.cylinder(radius=28.0, height=56.0)])
+    cup_path = write(tmp_path, "cup.stl", cup)
+    sc = Scene(objects=[user_object(str(cup_path), "plastic", fill="water")])
+    hit = sc.cast(aim(sc, np.array([0.0, -30.0, 30.0])), 0.0)
+    assert [[m for m, _ in r.path] for r in hit.later[:2]] == [["plastic"],
+                                                               ["plastic", "water"]]
+    with pytest.raises(CliError, match="fill 'beer' is not a material"):
+        user_object(str(cup_path), "plastic", fill="beer")
 
 
 def test_a_users_object_is_posed_and_takes_a_region_map(tmp_path):

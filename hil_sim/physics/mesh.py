@@ -325,11 +325,14 @@ def load_region_map(path: str | os.PathLike, n_faces: int, known: set[str]
 
 def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
                 tilt_deg: float = 0.0, region_map: str | os.PathLike | None = None,
-                limit_mm: tuple[float, float, float] = (270.0, 270.0, 430.0)) -> SceneObject:
+                limit_mm: tuple[float, float, float] = (270.0, 270.0, 430.0),
+                interior: bool = False, fill: str | None = None) -> SceneObject:
     """A user's mesh file (load_mesh_file) as a SceneObject standing on the table's centre:
     turned by yaw about the table's normal after tilting it by tilt about the table's x axis
     (deg), its lowest point on the table; a region map (load_region_map) gives parts other
-    materials. Raises MeshFileError with one line saying what to fix."""
+    materials; `interior` casts on to the surfaces inside it (a hollow object's inner wall),
+    `fill` fills its cavities (a material, e.g. water). Raises MeshFileError with one line
+    saying what to fix."""
     from .scene import rodrigues
     from .signals import MATERIALS
 
@@ -339,6 +342,9 @@ def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
                             f"{', '.join(sorted(known))}")
     if not (np.isfinite(yaw_deg) and np.isfinite(tilt_deg) and abs(tilt_deg) <= 180):
         raise MeshFileError("yaw and tilt are angles in degrees (tilt within -180..180)")
+    if fill is not None and fill not in MATERIALS:
+        raise MeshFileError(f"fill {fill!r} is not a material of the emulator; use one of "
+                            f"{', '.join(sorted(MATERIALS))}")
     mesh = standing(load_mesh_file(path, limit_mm=limit_mm))
     face_region, regions = (None, {}) if region_map is None else load_region_map(
         region_map, len(mesh.faces), known)
@@ -357,5 +363,7 @@ def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
     mesh = mesh.copy()
     mesh.apply_translation(-centroid)
     shape = Mesh(center=center, R=R, mesh=mesh, face_region=face_region,
-                 region_names=("object", *(regions[k] for k in sorted(regions))))
-    return SceneObject(os.path.basename(os.fspath(path)), material, shape, regions=regions)
+                 region_names=("object", *(regions[k] for k in sorted(regions))),
+                 interior=interior or fill is not None)
+    return SceneObject(os.path.basename(os.fspath(path)), material, shape, regions=regions,
+                       fill=fill)

@@ -27,6 +27,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--regions", default=None, metavar="JSON",
                    help='the --object\'s parts of other materials: {"paper": [face, ...]} '
                         "with faces numbered from 0 in the mesh file's order")
+    p.add_argument("--hollow", action="store_true",
+                   help="let the sound see the --object's inside (inner walls, the far wall: "
+                        "docs/sim.md, what the physics does at an interface)")
+    p.add_argument("--fill", default=None, metavar="M",
+                   help="what fills the --object's cavities (e.g. water); implies --hollow")
     p.add_argument("--yaw", type=float, default=0.0,
                    help="turn the --object about the table's axis (deg)")
     p.add_argument("--tilt", type=float, default=0.0,
@@ -74,8 +79,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         return 0
     if args.speed <= 0:
         raise CliError("--speed must be positive")
-    objects = [user_object(args.object, args.material, args.yaw, args.tilt, args.regions)
-               ] if args.object else []
+    objects = [user_object(args.object, args.material, args.yaw, args.tilt, args.regions,
+                           args.hollow, args.fill)] if args.object else []
     if args.scene is None:
         args.scene = "empty" if objects else "aluminium_block"
     try:
@@ -120,17 +125,19 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def user_object(path: str, material: str, yaw: float = 0.0, tilt: float = 0.0,
-                regions: str | None = None) -> object:
+                regions: str | None = None, hollow: bool = False,
+                fill: str | None = None) -> object:
     """A user's mesh file as a SceneObject standing on the table's centre (yaw, tilt in deg;
-    a region map JSON gives parts other materials); a file that cannot be mounted is one
-    line saying what to fix (a CliError)."""
+    a region map JSON gives parts other materials; hollow: the sound sees inside it; fill:
+    what fills it); a file that cannot be mounted is one line saying what to fix (a
+    CliError)."""
     from dmdsm.sim.physics.mesh import MeshFileError
     from dmdsm.sim.physics.mesh import user_object as mount
 
     from .errors import CliError
 
     try:
-        return mount(path, material, yaw, tilt, regions)
+        return mount(path, material, yaw, tilt, regions, interior=hollow, fill=fill)
     except MeshFileError as e:
         raise CliError(str(e)) from None
 

@@ -170,6 +170,8 @@ def test_a_scene_of_the_mesh_gives_the_same_shots(kind, theta, dx, dz, yaw, tilt
     S = centre - 100 * v + dx * e1 + dz * np.cross(v, e1)
     ha, hm = sa.cast(S, theta), sm.cast(S, theta)
     assert np.isfinite(ha.d) and np.isfinite(hm.d)  # aimed within the object's outline
+    if not ha.later and not hm.later:
+        assert hm.overlap <= ha.overlap  # inscribed: never more of the spot on it
     if ha.overlap < 1 or ha.cos_incidence < 0.5 or ha.later:
         return  # a spot on a rim or at a grazing angle: covered ray by ray above
     assert hm.overlap == ha.overlap and hm.material == "plastic" and hm.obj == "o"

@@ -84,7 +84,6 @@ class Mesh(Shape):
             t[hit] = np.where(np.isfinite(th) & (th > 0), th, np.inf)
         return t
 
-
     def face_normals(self, face: np.ndarray) -> np.ndarray:
         """Outward unit normals of faces (any shape of indices; zero for -1), local frame."""
         f = np.asarray(face, int)

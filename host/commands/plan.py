@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+from dataclasses import asdict
 from pathlib import Path
 
 from ..files import atomic_output, check_output
@@ -39,9 +41,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     n.add_argument("-o", "--output", type=Path, default=None,
                    help="the plan file (default OBJECT_ID.toml)")
     n.add_argument("--force", action="store_true", help="overwrite an existing plan file")
+    n.add_argument("--json", action="store_true", help="machine-readable output")
     n.set_defaults(func=cmd_plan_new)
     s = actions.add_parser("show", help="check a plan file and print what it scans")
     s.add_argument("plan", type=Path, metavar="PLAN", help="the plan file (TOML)")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=cmd_plan_show)
 
 
@@ -56,7 +60,7 @@ def cmd_plan_new(args: argparse.Namespace) -> int:
     check_output(out, args.force)
     with atomic_output(out, args.force) as tmp:
         tmp.write_text(plan.to_toml())
-    print(f"wrote {out}: {_summary(plan)}")
+    _say(args, plan, f"wrote {out}", out)
     return 0
 
 
@@ -66,8 +70,16 @@ def cmd_plan_show(args: argparse.Namespace) -> int:
         plan = load_plan(args.plan)
     except PlanError as e:
         raise CliError(str(e)) from None
-    print(f"{args.plan}: {_summary(plan)}")
+    _say(args, plan, str(args.plan), args.plan)
     return 0
+
+
+def _say(args: argparse.Namespace, plan: object, head: str, path: Path) -> None:
+    """The plan's summary as one line, or as JSON (the file and every key) with --json."""
+    if args.json:
+        print(json.dumps({"file": str(path), "points": plan.n_points(), **asdict(plan)}))
+    else:
+        print(f"{head}: {_summary(plan)}")
 
 
 def _summary(plan: object) -> str:

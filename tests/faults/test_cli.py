@@ -95,12 +95,13 @@ def test_acquire_settings_outside_the_spec_are_named_before_connecting(tmp_path,
 
 
 @pytest.mark.parametrize("args, words", [
-    (["-x", "9999", "-y", "200", "-z", "20"], "would leave the machine envelope: X9999 is "
-                                              "outside the machine envelope (-10..410 mm)"),
-    (["-x", "200", "-y", "5", "-z", "20", "--steps", "40"], "Y-14.5 is outside"),
-    (["-x", "200", "-y", "200", "-z", "20", "--steps", "1"], "--steps must be 2..1000"),
-    (["-x", "nan", "-y", "200", "-z", "20"], "-x must be a finite number"),
-    (["-x", "200", "-y", "200", "-z", "20", "--average", "0"], "--average 0 is outside 1..4096"),
+    (["--at", "9999", "200", "20"], "would leave the machine envelope: X9999 is "
+                                    "outside the machine envelope (-10..410 mm)"),
+    (["--at", "200", "5", "20", "--steps", "40"], "Y-14.5 is outside"),
+    (["--at", "200", "200", "20", "--steps", "1"], "--steps must be 2..1000"),
+    (["--at", "nan", "200", "20"], "--at X must be a finite number"),
+    (["-x", "nan", "-y", "200", "-z", "20"], "--at X must be a finite number"),  # old spelling
+    (["--at", "200", "200", "20", "--average", "0"], "--average 0 is outside 1..4096"),
 ])
 def test_calibrate_range_refuses_a_bad_procedure_before_touching_a_board(tmp_path, capsys,
                                                                          args, words):

@@ -435,6 +435,20 @@ def test_a_users_object_is_posed_and_takes_a_region_map(tmp_path):
         user_object_physics(tmp_path / "long.stl", "glass", tilt_deg=90.0)
 
 
+def test_a_users_object_can_stand_off_the_axis_but_not_off_the_scanner(tmp_path):
+    """The issue poses an object by position too: a 40 mm ball placed 50 mm along x is hit
+    there and not on the axis; a place that puts it past the scanner's 270 mm is refused."""
+    path = write(tmp_path, "ball.ply", trimesh.creation.icosphere(3, radius=20.0))
+    obj = user_object_physics(path, "apple", offset_mm=(50.0, 0.0))
+    sc = Scene(objects=[obj])
+    assert sc.cast(aim(sc, np.array([50.0, -20.0, 20.0])), 0.0).obj == "ball.ply"
+    assert sc.cast(aim(sc, np.array([0.0, -20.0, 20.0])), 0.0).obj is None
+    with pytest.raises(MeshFileError, match="place it nearer the axis"):
+        user_object_physics(path, "apple", offset_mm=(120.0, 0.0))
+    with pytest.raises(MeshFileError, match="two numbers in mm"):
+        user_object_physics(path, "apple", offset_mm=(float("nan"), 0.0))
+
+
 def test_the_emulated_board_streams_oa_on_the_label_and_none_on_the_glass():
     """Through the firmware core and the protocol, as a user sees it: the stage parked in
     front of the jar's paper label, then of its bare glass above it; one 12-shot average each."""

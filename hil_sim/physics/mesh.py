@@ -325,13 +325,14 @@ def load_region_map(path: str | os.PathLike, n_faces: int, known: set[str]
 def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
                 tilt_deg: float = 0.0, region_map: str | os.PathLike | None = None,
                 limit_mm: tuple[float, float, float] = (270.0, 270.0, 430.0),
-                interior: bool = False, fill: str | None = None) -> SceneObject:
+                interior: bool = False, fill: str | None = None,
+                offset_mm: tuple[float, float] = (0.0, 0.0)) -> SceneObject:
     """A user's mesh file (load_mesh_file) as a SceneObject standing on the table's centre:
     turned by yaw about the table's normal after tilting it by tilt about the table's x axis
     (deg), its lowest point on the table; a region map (load_region_map) gives parts other
     materials; `interior` casts on to the surfaces inside it (a hollow object's inner wall),
-    `fill` fills its cavities (a material, e.g. water). Raises MeshFileError with one line
-    saying what to fix."""
+    `fill` fills its cavities (a material, e.g. water); `offset_mm` (x, y) places its centre
+    off the table's axis. Raises MeshFileError with one line saying what to fix."""
     from .scene import rodrigues
     from .signals import MATERIALS
 
@@ -359,6 +360,16 @@ def user_object(path: str | os.PathLike, material: str, yaw_deg: float = 0.0,
     # p_table = R (p - centroid) + center: centred on the axis, lowest point at z = 0
     lo, hi = turned.min(axis=0), turned.max(axis=0)
     center = -np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    off = np.asarray(offset_mm, float)
+    if not (off.shape == (2,) and np.isfinite(off).all()):
+        raise MeshFileError("the offset is two numbers in mm (x, y from the table's axis)")
+    reach = np.abs(off) + ext[:2] / 2  # the footprint's farthest extent from the axis
+    if any(r > lim / 2 for r, lim in zip(reach, limit_mm[:2])):
+        raise MeshFileError(f"{os.fspath(path)} placed {off[0]:g}, {off[1]:g} mm off the axis "
+                            f"reaches {reach[0]:.1f}, {reach[1]:.1f} mm from it, beyond the "
+                            f"scanner's ±{limit_mm[0] / 2:g} x ±{limit_mm[1] / 2:g} mm: place "
+                            f"it nearer the axis")
+    center[:2] += off
     mesh = mesh.copy()
     mesh.apply_translation(-centroid)
     shape = Mesh(center=center, R=R, mesh=mesh, face_region=face_region,

@@ -36,6 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="turn the --object about the table's axis (deg)")
     p.add_argument("--tilt", type=float, default=0.0,
                    help="tilt the --object about the table's x axis before the yaw (deg)")
+    p.add_argument("--offset", type=float, nargs=2, default=(0.0, 0.0), metavar=("X", "Y"),
+                   help="place the --object's centre X, Y mm off the table's axis (default "
+                        "0 0: centred)")
     p.add_argument("--list-scenes", action="store_true",
                    help="print the scenes (objects, materials, sizes in mm) and exit")
     p.add_argument("--positions", action="store_true",
@@ -80,7 +83,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if args.speed <= 0:
         raise CliError("--speed must be positive")
     objects = [user_object(args.object, args.material, args.yaw, args.tilt, args.regions,
-                           args.hollow, args.fill)] if args.object else []
+                           args.hollow, args.fill, args.offset)] if args.object else []
     if args.scene is None:
         args.scene = "empty" if objects else "aluminium_block"
     try:
@@ -126,8 +129,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def user_object(path: str, material: str, yaw: float = 0.0, tilt: float = 0.0,
                 regions: str | None = None, hollow: bool = False,
-                fill: str | None = None) -> object:
-    """A user's mesh file as a SceneObject standing on the table's centre (yaw, tilt in deg;
+                fill: str | None = None, offset_mm: tuple[float, float] = (0.0, 0.0)) -> object:
+    """A user's mesh file as a SceneObject standing on the table (yaw, tilt in deg; offset
+    x, y in mm from the axis;
     a region map JSON gives parts other materials; hollow: the sound sees inside it; fill:
     what fills it); a file that cannot be mounted is one line saying what to fix (a
     CliError)."""
@@ -137,7 +141,8 @@ def user_object(path: str, material: str, yaw: float = 0.0, tilt: float = 0.0,
     from .errors import CliError
 
     try:
-        return mount(path, material, yaw, tilt, regions, interior=hollow, fill=fill)
+        return mount(path, material, yaw, tilt, regions, interior=hollow, fill=fill,
+                     offset_mm=tuple(offset_mm))
     except MeshFileError as e:
         raise CliError(str(e)) from None
 

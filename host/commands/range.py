@@ -161,7 +161,8 @@ def read_acquisition(path: Path) -> tuple[np.ndarray, np.ndarray, int, np.ndarra
             w = sets["waveforms"]
             n = w.shape[0] if w.ndim == 2 else -1
             if n < 0 or w.dtype.kind not in "ui" or any(
-                    sets[k].shape != (n,) for k in ("received", "trigger_phase", "shot_id")):
+                    sets[k].shape != (n,) or sets[k].dtype.kind not in "biu"
+                    for k in ("received", "trigger_phase", "shot_id")):
                 raise bad("waveforms must be (shots, samples) integers with one received, "
                           "trigger_phase and shot_id per shot")
             if w.size * 8 > MAX_SHOT_BYTES:

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import serial
 
+from dmdsm.host.links.board_clock import BoardClock, Deadline
 from dmdsm.protocol import FrameDecoder, Message, encode_frame
 
 
@@ -14,6 +13,9 @@ class Link:
 
     def __init__(self, url: str, baudrate: int = 2_000_000) -> None:
         self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05)
+        # waits count the board's time too: a rehosted board on a loaded machine runs at a
+        # few % of real time (host/links/board_clock.py); a real board keeps wall time
+        self.clock = BoardClock(url)
         self.dec = FrameDecoder(report_errors=True)
         self.seq = 100
         self.unsolicited: list[Message] = []
@@ -26,10 +28,10 @@ class Link:
     def pump(self, seconds: float = 0.0) -> list:
         """Read for up to `seconds` (at least once) and return what was decoded."""
         out = []
-        end = time.monotonic() + seconds
+        end = Deadline(seconds, self.clock)
         while True:
             out += self.dec.feed(self.port.read(65536))
-            if time.monotonic() >= end:
+            if end.passed():
                 return out
 
     def send_raw(self, data: bytes) -> None:
@@ -43,9 +45,9 @@ class Link:
             self.seq = (self.seq + 1) & 0xFFFF
             seq = self.seq
         self.port.write(encode_frame(Message(name, seq=seq, flags=flags, **fields)))
-        end = time.monotonic() + timeout
+        end = Deadline(timeout, self.clock)
         response = None
-        while response is None and time.monotonic() < end:
+        while response is None and not end.passed():
             for item in self.pump():
                 if not isinstance(item, Message):
                     continue
@@ -61,12 +63,12 @@ class Link:
         """Collect n waveform messages (including any already received), waiting until
         `timeout` seconds pass without a new one: a slow but steady target (a rehost on a
         loaded machine) is not cut short, a stalled one is."""
-        end = time.monotonic() + timeout
+        end = Deadline(timeout, self.clock)
         count = 0
         while (now := len([m for m in self.unsolicited if m.name == "waveform"])) < n:
             if now > count:
-                count, end = now, time.monotonic() + timeout
-            if time.monotonic() > end:
+                count, end = now, Deadline(timeout, self.clock)
+            if end.passed():
                 break
             self.unsolicited += [m for m in self.pump() if isinstance(m, Message)]
         got = [m for m in self.unsolicited if m.name == "waveform"]

@@ -181,7 +181,7 @@ def _region_name(obj: object, region: int) -> str:
 
 
 # where the hand pipeline puts the sensor (README "The same pipeline by hand"); the demo
-# uses the same places (host/demo/session.py)
+# imports these (host/demo/session.py)
 RANGING_AT_MM = (235.0, 266.0, 20.0)  # in front of the block's face, 7-8 mm away
 TIP_AT = (np.array([0.0, -10.0, 20.0]), 6.0)     # table frame point, then back along v (mm)
 EDGE_AT = (np.array([25.0, 0.0, 0.0]), 6.25)

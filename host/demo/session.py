@@ -23,6 +23,7 @@ from typing import TextIO
 import numpy as np
 
 from ..commands.errors import Terminated
+from ..commands.sim import EDGE_AT, RANGING_AT_MM, TIP_AT
 from ..report.page import Section
 from ..scan.plan import ScanPlan
 
@@ -167,9 +168,10 @@ def stage_ranging(d: Demo) -> Section:
     """Step the sensor away from the block's face: t0 per modality (c from 20 degC air)."""
     sec = Section(TITLES["stage_ranging"])
     d.run("stage", "home", *d.ports[2:])
-    d.run("stage", "move", "-x", "235", "-y", "266", "-z", "20", *d.ports[2:])
+    at = [f"{c:g}" for c in RANGING_AT_MM]  # as the README and `dmdsm sim --positions`
+    d.run("stage", "move", "-x", at[0], "-y", at[1], "-z", at[2], *d.ports[2:])
     start = d.sim.truth()["distance_mm"]  # a gauge block would give this on the machine
-    rep = json.loads(d.run("calibrate-range", *d.ports, "--at", "235", "266", "20",
+    rep = json.loads(d.run("calibrate-range", *d.ports, "--at", *at,
                            "--start-distance", f"{start:.4f}", "--steps",
                            "8" if d.quick else "21", "--step-mm", "1", "--shots", "2",
                            "--lateral", "3" if d.quick else "5", "--fixed-c",
@@ -211,11 +213,11 @@ def stage_rig(d: Demo) -> tuple[Section, dict]:
     q = ["--tip-depths", "0", "4", "8", "--tip-step", "0.2", "--edge-levels", "10", "25",
          "40", "--edge-step", "0.15"] if d.quick else []
     d.mount("rig_horizontal")
-    tip = tr["X_R"] + frame @ np.array([0.0, -10.0, 20.0]) - 6 * tr["v"]
+    tip = tr["X_R"] + frame @ TIP_AT[0] - TIP_AT[1] * tr["v"]  # as `dmdsm sim --positions`
     d.run("calibrate", "--step", "tip", *d.ports, "--ranging", str(d.out / "ranging.json"),
           "--data", str(data), "--at", *(f"{c:.3f}" for c in tip), "--json", *q)
     d.mount("rig_vertical")
-    fil = tr["X_R"] + frame @ np.array([25.0, 0.0, 0.0]) - 6.25 * tr["v"]
+    fil = tr["X_R"] + frame @ EDGE_AT[0] - EDGE_AT[1] * tr["v"]
     r = json.loads(d.run("calibrate", "--step", "edge", *d.ports, "--ranging",
                          str(d.out / "ranging.json"), "--data", str(data), "--at",
                          f"{fil[0]:.3f}", f"{fil[1]:.3f}", "0", "-o", str(cal), "--json", *q))

@@ -25,7 +25,9 @@ def plans(draw: st.DrawFn) -> ScanPlan:
         samples=draw(st.integers(16, 8192)), settle_s=draw(st.floats(0.0, 2.0)),
         feed_mm_min=draw(st.floats(1.0, 12000.0)), modality=draw(st.sampled_from(MODALITIES)),
         turntable_radius_mm=draw(MM), depth_margin_mm=draw(st.floats(0.0, 10.0)),
-        mode=draw(st.sampled_from(MODES)), laser_hz=draw(st.floats(1.0, 5000.0)))
+        mode=draw(st.sampled_from(MODES)), laser_hz=draw(st.floats(1.0, 5000.0)),
+        first_look_step_mm=draw(st.floats(0.5, 20.0)),
+        max_incidence_deg=draw(st.floats(1.0, 89.0)), max_angles=draw(st.integers(1, 72)))
     assume(plan.step_mm <= 2 * plan.half_width_mm)
     assume(plan.mode == "step" or plan.step_mm * plan.laser_hz / plan.average <= 200.0)
     return plan
@@ -37,9 +39,14 @@ def test_to_toml_round_trips_through_load_plan(plan, tmp_path_factory):
     path = tmp_path_factory.mktemp("plan") / "plan.toml"
     path.write_text(plan.to_toml())
     back = load_plan(path)
-    # a step plan's text leaves out mode and laser_hz (the scan ids stay as they were), so
-    # they read back as the defaults, which only a fly scan uses
-    expect = plan if plan.mode == "fly" else ScanPlan(**{**vars(plan), "laser_hz": 1000.0})
+    # a step plan's text leaves out mode and laser_hz, and a step or fly plan's the auto
+    # keys (the scan ids stay as they were), so they read back as the defaults, which
+    # those modes do not use
+    d = ScanPlan("x")
+    auto = {k: getattr(d, k) for k in ("first_look_step_mm", "max_incidence_deg", "max_angles")}
+    expect = plan if plan.mode == "auto" else ScanPlan(**{**vars(plan), **auto})
+    if plan.mode == "step":
+        expect = ScanPlan(**{**vars(expect), "laser_hz": 1000.0})
     assert back == expect and back.hash() == plan.hash()
 
 

@@ -37,9 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", dest="object_id", help="override [sample] object_id")
     p.add_argument("--material", help="override [sample] material")
     p.add_argument("--scan-id", help="name of the scan (default: object id + plan hash)")
-    p.add_argument("--mode", choices=("step", "fly"),
-                   help="override [scan] mode: step and shoot, or fly (each line one "
-                        "constant-speed move, shots placed by time; docs/scanning.md)")
+    p.add_argument("--mode", choices=("step", "fly", "auto"),
+                   help="override [scan] mode: step and shoot, fly (each line one "
+                        "constant-speed move, shots placed by counted steps), or auto (a "
+                        "first look, then lines that follow the outline; docs/scanning.md)")
     p.add_argument("--no-home", action="store_true", help="the stage is already homed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_scan)
@@ -121,4 +122,10 @@ def cmd_scan(args: argparse.Namespace) -> int:
         print(f"scan {run.scan_id}: {run.points} points in {run.path}; "
               f"{summary['points_per_s']} points/s; per point "
               + ", ".join(f"{k} {v:.1f} ms" for k, v in per.items()))
+        if run.auto:
+            a = run.auto
+            print(f"auto: {a['first_look_lines']} first-look lines, {a['lines']} follow lines "
+                  f"at {len(a['angles_deg'])} table angles; coverage of the measured outline "
+                  f"at {a['coverage_spacing_mm']:g} mm: "
+                  + ", ".join(f"{m.upper()} {100 * c:.1f} %" for m, c in a["coverage"].items()))
     return 0

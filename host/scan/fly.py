@@ -158,3 +158,50 @@ def place_shots(motion: LineMotion, first_edge_ticks: int, last_edge_ticks: int,
     c0, c1 = motion.cruise_s
     cruise = (t[:, 0] >= c0) & (t[:, -1] <= c1)
     return x, cruise, scale
+
+
+@dataclass(frozen=True)
+class LinePath:
+    """A fly line's path in the XY plane (mm): straight joined moves through vertices whose X
+    only advances (run-up start, the line's vertices, run-out end). Each segment is linear
+    in X, so a shot's counted X gives its Y and its distance along the path."""
+
+    x: np.ndarray  # (k,) vertex X in execution order, strictly monotonic
+    y: np.ndarray  # (k,) vertex Y
+
+    def __post_init__(self) -> None:
+        dx = np.diff(self.x)
+        if len(self.x) < 2 or not (np.all(dx > 0) or np.all(dx < 0)):
+            raise ValueError("a fly line's X must advance on every segment")
+
+    def _ascending(self) -> tuple[np.ndarray, np.ndarray]:
+        return (self.x, self.y) if self.x[-1] > self.x[0] else (self.x[::-1], self.y[::-1])
+
+    def y_at(self, x_mm: np.ndarray) -> np.ndarray:
+        """Y (mm) on the path where X is x_mm."""
+        xa, ya = self._ascending()
+        return np.interp(x_mm, xa, ya)
+
+    def s_at(self, x_mm: np.ndarray) -> np.ndarray:
+        """Path length (mm) from the start to where X is x_mm."""
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(self.x), np.diff(self.y)))])
+        if self.x[-1] > self.x[0]:
+            return np.interp(x_mm, self.x, s)
+        return np.interp(x_mm, self.x[::-1], s[::-1])
+
+    @property
+    def length_mm(self) -> float:
+        """Total path length (mm)."""
+        return float(np.sum(np.hypot(np.diff(self.x), np.diff(self.y))))
+
+
+def junction_speed_mm_s(u1: np.ndarray, u2: np.ndarray, accel_mm_s2: float,
+                        junction_deviation_mm: float) -> float:
+    """Marlin's junction-deviation speed limit (mm/s) between segments along unit vectors u1
+    and u2: v^2 = a jd sin(theta/2) / (1 - sin(theta/2)), theta the angle the path keeps
+    (180 deg straight on)."""
+    cos_theta = max(-float(np.dot(u1, u2)), -0.999999)
+    if cos_theta > 0.999999:
+        return 0.0
+    sin_d2 = math.sqrt(0.5 * (1.0 - cos_theta))
+    return math.sqrt(accel_mm_s2 * junction_deviation_mm * sin_d2 / (1.0 - sin_d2))

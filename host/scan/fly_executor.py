@@ -13,8 +13,9 @@ of a line: an interrupted scan resumes at the next line.
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,7 +28,15 @@ from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.point import PointRanger, surface
 from .common import Progress, ScanStats, approach
-from .fly import LineMotion, at_line_speed, counted_x, line_speed_mm_s, place_shots, ramp_mm
+from .fly import (
+    LineMotion,
+    LinePath,
+    at_line_speed,
+    counted_x,
+    line_speed_mm_s,
+    place_shots,
+    ramp_mm,
+)
 from .plan import Point, ScanPlan
 from .scanfile import PHASES, ScanWriter
 
@@ -47,10 +56,15 @@ class LineRejected(Exception):
 
 @dataclass
 class FlyLine:
-    """One raster line: its plan points (in execution order) and where it is."""
+    """One raster line: its plan points (in execution order) and where it is. A line whose
+    points differ in Y is a polyline (an auto scan's surface-following line): the stage
+    runs it as joined G1 moves through `vertices`, X always advancing, so the counted X
+    steps place every shot on it. `via`: waypoints (X, Y, Z mm, A deg) the stage passes
+    before the run-up start (an auto scan's retreat around the object)."""
 
     index: int
     points: list[Point]
+    via: list[tuple[float, float, float, float]] = field(default_factory=list)
 
     @property
     def x_first(self) -> float:
@@ -67,13 +81,27 @@ class FlyLine:
         """+1 if the line runs towards larger X."""
         return 1.0 if self.x_last >= self.x_first else -1.0
 
+    @property
+    def is_polyline(self) -> bool:
+        """True if the line moves Y as well as X."""
+        return len({round(p.y, 6) for p in self.points}) > 1
+
+    def vertices(self, every: int = 1) -> list[tuple[float, float]]:
+        """(X, Y) mm the line's joined moves go through, in execution order: the points of
+        every `every`-th column (the columns follow_y checked the junctions of), the first
+        and the last."""
+        last = len(self.points) - 1
+        return [(p.x, p.y) for i, p in enumerate(self.points)
+                if i in (0, last) or p.column % every == 0]
+
 
 def fly_lines(points: list[Point]) -> list[FlyLine]:
-    """The plan's points grouped into lines (same angle and level, consecutive)."""
+    """The plan's points grouped into lines (same line number, or same angle and level,
+    consecutive)."""
     lines: list[FlyLine] = []
     for p in points:
-        if lines and (lines[-1].points[0].angle_index, lines[-1].points[0].level) == (
-                p.angle_index, p.level):
+        if lines and (lines[-1].points[0].angle_index, lines[-1].points[0].level,
+                      lines[-1].points[0].line) == (p.angle_index, p.level, p.line):
             lines[-1].points.append(p)
         else:
             lines.append(FlyLine(len(lines), [p]))
@@ -96,12 +124,37 @@ def line_ends(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> tuple[fl
     return line.x_first - line.direction * r, line.x_last + line.direction * r
 
 
+VERTEX_EVERY = 3   # a polyline's vertices: every 3rd column (fewer G-code lines per second)
+RUNUP_PIECE_MM = 8.0  # a polyline's run-up in pieces: Marlin starts the first block once 3
+# are queued and cannot raise its exit speed after; the pieces after it are planned with
+# the whole line in the queue, so the line reaches its speed before its first point
+
+
+def line_path(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> LinePath:
+    """The line's XY path: run-up start, its vertices, run-out end (the run-up and the
+    run-out along X at the first and last point's Y)."""
+    xs, xe = line_ends(line, plan, machine)
+    y0 = line.points[0].y
+    if not line.is_polyline:  # straight: one G1
+        return LinePath(np.array([xs, xe]), np.array([y0, line.points[-1].y]))
+    k = max(int(math.ceil(abs(line.x_first - xs) / RUNUP_PIECE_MM)), 1)
+    run_up = [(xs + (line.x_first - xs) * i / k, y0) for i in range(k)]
+    vx = [*run_up, *line.vertices(VERTEX_EVERY), (xe, line.points[-1].y)]
+    return LinePath(np.array([p[0] for p in vx]), np.array([p[1] for p in vx]))
+
+
 def run_fly_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, points: list[Point],
                  writer: ScanWriter, ranger: PointRanger, machine: MachineLimits,
-                 progress: Progress | None = None) -> ScanStats:
+                 progress: Progress | None = None,
+                 via: dict[int, list[tuple[float, float, float, float]]] | None = None
+                 ) -> ScanStats:
     """Measure the lines after the last one in the file; returns what this run did
-    (progress: points in the file, planned, phase times s, after each stored line)."""
-    return FlyRun(stage, sensor, plan, points, writer, ranger, machine, progress).run()
+    (progress: points in the file, planned, phase times s, after each stored line; via:
+    waypoints before a line's run-up start, by line index)."""
+    run = FlyRun(stage, sensor, plan, points, writer, ranger, machine, progress)
+    for i, w in (via or {}).items():
+        run.lines[i].via = list(w)
+    return run.run()
 
 
 @dataclass
@@ -192,6 +245,8 @@ class FlyRun:
         while attempts < RETRIES:
             attempts += 1
             timing = dict.fromkeys(PHASES, 0.0)
+            for wx, wy, wz, wa in line.via:  # around the object (checked with the plan)
+                self.stage.move(x=wx, y=wy, z=wz, a=wa, feed_mm_min=self.plan.feed_mm_min)
             self.stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg,
                             feed_mm_min=self.plan.feed_mm_min)
             self.store_pending()  # the previous line, while the stage moves
@@ -200,7 +255,8 @@ class FlyRun:
             t1 = time.monotonic()
             timing["move"] = t1 - t0
             try:
-                rows = self.measure(line, LineMotion(xs, xe, self.v, self.a, self.spu))
+                rows = self.measure(line, LineMotion(xs, xe, self.v, self.a, self.spu),
+                                    line_path(line, self.plan, self.machine))
                 return MeasuredLine(rows, line, attempts, timing)
             except LineRejected as e:
                 reasons.append(str(e))
@@ -212,17 +268,25 @@ class FlyRun:
         raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
                            f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
 
-    def measure(self, line: FlyLine, motion: LineMotion) -> dict:
+    def measure(self, line: FlyLine, motion: LineMotion, path: LinePath | None = None
+                ) -> dict:
         """One pass along the line (the stage at motion.x0, at rest), sweeping to motion.x1
-        at motion.v (mm/s): the kept waveforms and where they were, or LineRejected. A
-        clock_sync exchange just before the arm and one just after the disarm bracket the
-        line in the device's clock (appended to self.exchanges for the drift fit)."""
+        at motion.v (mm/s) along `path`: the kept waveforms and where they were, or
+        LineRejected. A clock_sync exchange just before the arm and one just after the
+        disarm bracket the line in the device's clock (appended to self.exchanges for the
+        drift fit). A polyline's shots are placed by their counted X on the path, and its
+        timing is modelled along the path (the feed rate is the path's speed); no path: X
+        alone at the line's Y."""
+        if path is None:
+            path = LinePath(np.array([motion.x0, motion.x1]), np.full(2, line.points[0].y))
         stage, sensor, plan, clock, v = self.stage, self.sensor, self.plan, self.clock, motion.v
         bursts_before = {m.burst_id for m in sensor.motion_syncs}
         before = sensor.clock_exchanges(1)
         sensor.stream_start()
         try:
-            stage.move(x=motion.x1, feed_mm_min=round(v * 60), wait=False)
+            feed = round(v * 60)
+            for vx, vy in zip(path.x[1:], path.y[1:]):  # joined by Marlin's planner
+                stage.move(x=float(vx), y=float(vy), feed_mm_min=feed, wait=False)
             stage.wait()
             end = time.monotonic() + SYNC_WAIT_S
             while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
@@ -259,13 +323,20 @@ class FlyRun:
         if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
             raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
                                f"laser_hz = {plan.laser_hz:g}: set laser_hz in the plan")
-        try:  # the model says which shots fell in the cruise; the counted steps say where
-            _, cruise, _ = place_shots(motion, int(new[0].first_edge), int(new[0].last_edge),
-                                       tick_hz, ts, n_avg, period)
-        except ValueError as e:
-            raise LineRejected(str(e)) from None
+        # the model says which shots fell in the cruise (along the path: Marlin's feed rate
+        # is the path's speed; the first and last X steps are at its ends); the counted
+        # steps say where
+        # A polyline's blocks are joined by the planner as the commands arrive, so no
+        # one-block model says when it cruises: its waveforms' advance along the path does
+        cruise = np.ones(len(waves), bool)
+        if not line.is_polyline:
+            try:
+                _, cruise, _ = place_shots(motion, int(new[0].first_edge),
+                                           int(new[0].last_edge), tick_hz, ts, n_avg, period)
+            except ValueError as e:
+                raise LineRejected(str(e)) from None
         x = counted_x(motion, np.array([w.sync_steps for w in waves]), n_avg)
-        cruise &= at_line_speed(x, v, n_avg, period)
+        cruise &= at_line_speed(path.s_at(x), v, n_avg, period)
         lo = min(line.x_first, line.x_last) - plan.step_mm / 2
         hi = max(line.x_first, line.x_last) + plan.step_mm / 2
         keep = cruise & (x >= lo) & (x <= hi)
@@ -273,7 +344,8 @@ class FlyRun:
             raise LineRejected("no waveform fell inside the line's cruise")
         idx = np.nonzero(keep)[0]
         return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
-                "x": x[idx], "timestamp": ts[idx], "host_t": host_t[idx],
+                "x": x[idx], "y": path.y_at(x[idx]), "timestamp": ts[idx],
+                "host_t": host_t[idx],
                 "trigger_phase": np.array([waves[i].trigger_phase for i in idx]),
                 "n_average": np.array([waves[i].n_average for i in idx])}
 
@@ -316,7 +388,7 @@ def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
     for m in ("oa", "us"):
         d = np.asarray(out[f"distance_{m}_mm"], dtype=float)
         out[f"distance_{m}_mm"] = np.where(straddles(d, rows["x"], jump_mm), np.nan, d)
-    pos = np.column_stack([rows["x"], np.full(n, p0.y), np.full(n, p0.z)])
+    pos = np.column_stack([rows["x"], rows["y"], np.full(n, p0.z)])
     return {"stage_position_mm": pos, "theta_deg": np.full(n, p0.theta_deg),
             "level": np.full(n, p0.level), "column": np.arange(n),
             "angle_index": np.full(n, p0.angle_index), "received": np.ones(n, bool),

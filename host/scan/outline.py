@@ -53,6 +53,10 @@ class Outline:
         out[fill] = np.fmax(r_back, r_fwd)[fill]
         return out
 
+    def filled_r_mm(self) -> np.ndarray:
+        """(nphi, nz) radius (mm) of every closed cell (measured or filled), NaN elsewhere."""
+        return self._filled()
+
     def closed(self) -> np.ndarray:
         """(nphi, nz) bool: cells whose radius is known (measured, or filled between measured
         neighbours at most max_gap bins apart along phi in the same z row)."""

@@ -26,7 +26,7 @@ from ..ranging.calibrate import RangingSetup
 from ..ranging.point import PointRanger
 
 MODALITIES = ("both", "oa", "us")
-MODES = ("step", "fly")
+MODES = ("step", "fly", "auto")
 
 
 class PlanError(ValueError):
@@ -59,6 +59,12 @@ class ScanPlan:
     depth_margin_mm: float = 3.0     # echoes are searched standoff - m .. standoff + 2R + m
     mode: str = "step"               # "step": step and shoot; "fly": each line one move
     laser_hz: float = 1000.0         # laser repetition rate; fly sets the speed from it
+    # auto: a first look (levels this far apart, 8 angles) measures the outline; lines then
+    # follow it standoff_mm away at levels_mm and at angles_deg plus those that see the rest
+    # of it within max_incidence_deg, at most max_angles in all (docs/scanning.md)
+    first_look_step_mm: float = 6.0
+    max_incidence_deg: float = 45.0
+    max_angles: int = 16
 
     def validate(self) -> None:
         """Raise PlanError naming the first bad value."""
@@ -90,7 +96,12 @@ class ScanPlan:
             raise PlanError(f"mode must be one of {', '.join(MODES)} (got {self.mode!r})")
         if not self.laser_hz > 0:
             raise PlanError(f"laser_hz must be positive (got {self.laser_hz})")
-        if self.mode == "fly":
+        if not 0 < self.max_incidence_deg < 90:
+            raise PlanError(f"max_incidence_deg must be between 0 and 90 (got "
+                            f"{self.max_incidence_deg:g})")
+        if not 1 <= self.max_angles <= 72 or not self.first_look_step_mm > 0:
+            raise PlanError("max_angles must be 1..72 and first_look_step_mm positive")
+        if self.mode in ("fly", "auto"):
             from dmdsm.marlin_patch import load_machine
 
             m = load_machine()
@@ -153,6 +164,8 @@ class ScanPlan:
         out = ["[sample]"] + [f"{k} = {val(d[k])}" for k in sample]
         out += ["", "[object]"] + [f"{k} = {val(d[k])}" for k in obj]
         step_only = ("mode", "laser_hz") if self.mode == "step" else ()  # same ids as before
+        if self.mode != "auto":
+            step_only += ("first_look_step_mm", "max_incidence_deg", "max_angles")
         out += ["", "[scan]"] + [f"{k} = {val(v)}" for k, v in d.items()
                                  if k not in sample + obj + step_only]
         return "\n".join(out) + "\n"
@@ -168,6 +181,8 @@ class ScanPlan:
                 self.standoff_mm + 2 * self.radius_mm + self.depth_margin_mm)
 
 
+AUTO_SPACING_MM = 2.0  # an auto plan's levels apart (the coverage target's spacing)
+AUTO_LOWEST_MM = 4.5   # its lowest level: the turntable's keep-out ends 2 mm above the table
 FLY_AVERAGE = 12  # shots per fly waveform: 12 at 1 kHz, 2 mm apart = 167 mm/s (docs/scanning.md)
 
 
@@ -183,12 +198,16 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                         f"{h:g})")
     radius = max(w, d) / 2 if round_ else math.hypot(w, d) / 2
     mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
+    levels = [mm(min(0.5 * h, 40.0))]
+    if mode == "auto":  # every 2 mm over the height (the coverage spacing)
+        levels = [mm(z) for z in np.arange(AUTO_LOWEST_MM, h - 0.5, AUTO_SPACING_MM)] or [
+            mm(max(h / 2, AUTO_LOWEST_MM))]
     plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
-                    levels_mm=[mm(min(0.5 * h, 40.0))], angles_deg=[0.0, 90.0, 180.0, 270.0],
+                    levels_mm=levels, angles_deg=[0.0, 90.0, 180.0, 270.0],
                     half_width_mm=max(mm(0.35 * w), 0.1),
                     step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
-                    **({"average": FLY_AVERAGE} if mode == "fly" else {}))
+                    **({"average": FLY_AVERAGE} if mode != "step" else {}))
     plan.validate()
     return plan
 
@@ -274,6 +293,7 @@ class Point:
     level: int
     column: int
     angle_index: int
+    line: int = -1  # an auto scan's line number (-1: lines by angle and level)
 
 
 def expand(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:

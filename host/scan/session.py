@@ -24,11 +24,22 @@ from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from ..version import __version__
+from .auto import first_look_plan, first_look_points
+from .auto_executor import outline_coverage, run_auto_scan
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan
 from .fly_executor import fly_lines, line_ends, run_fly_scan
-from .plan import Point, ScanPlan, check_path, check_plan, expand, keep_outs, point_ranger
+from .plan import (
+    AUTO_SPACING_MM,
+    Point,
+    ScanPlan,
+    check_path,
+    check_plan,
+    expand,
+    keep_outs,
+    point_ranger,
+)
 from .scanfile import ScanFileError, ScanWriter, read_scan
 
 
@@ -42,6 +53,7 @@ class ScanRun:
     planned: int
     status: str  # "complete", "already complete" or "interrupted"
     stats: ScanStats = field(default_factory=ScanStats)
+    auto: dict = field(default_factory=dict)  # an auto scan: angles, lines, coverage
 
     def summary(self) -> dict:
         """The JSON summary `dmdsm scan --json` prints (times in s and ms, rate in points/s)."""
@@ -51,7 +63,8 @@ class ScanRun:
                 "wall_s": round(s.wall_s, 2),
                 "points_per_s": round(s.stored / s.wall_s, 3) if s.wall_s else 0,
                 "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()},
-                **({"clock_sync": s.clock} if s.clock else {})}
+                **({"clock_sync": s.clock} if s.clock else {}),
+                **({"auto": self.auto} if self.auto else {})}
 
 
 def scan_identity(plan: ScanPlan, calibration_toml: str, setup: RangingSetup) -> str:
@@ -66,7 +79,16 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
     points = expand(plan, v, X_R)
     machine, zones = load_machine(), keep_outs(plan, n, X_R)
-    if plan.mode == "fly":  # the whole swept path, run-ups and run-outs included
+    if plan.mode == "auto":  # the first look; the rest is checked once it has been seen
+        points = first_look_points(plan, v, X_R)
+        targets, labels = fly_path(points, first_look_plan(plan), machine)
+        check_path(targets, labels, None, machine, zones)
+        # the follow levels, as far as they are known before the first look: clear of the
+        # turntable in front of the object
+        y = points[0].y
+        check_path([np.array([X_R[0], y, X_R[2] + h]) for h in plan.levels_mm],
+                   [f"level {h:g} mm" for h in plan.levels_mm], None, machine, zones)
+    elif plan.mode == "fly":  # the whole swept path, run-ups and run-outs included
         targets, labels = fly_path(points, plan, machine)
         check_path(targets, labels, None, machine, zones)
     else:
@@ -146,7 +168,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         stage.home()
     here = stage.where()
     here_xyz = np.array([here["X"], here["Y"], here["Z"]])
-    if plan.mode == "fly":
+    if plan.mode != "step":
         targets, labels = fly_path(points[:1], plan, machine)
         check_path(targets[:1], labels[:1], here_xyz, machine, keep)
     else:
@@ -174,7 +196,17 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         if on_start is not None:
             on_start(writer, len(points))
         ranger = point_ranger(plan, setup, sc["n_samples"], sensor.identity.tick_hz)
-        if plan.mode == "fly":
+        if plan.mode == "auto":
+            run.stats, auto = run_auto_scan(stage, sensor, plan, points, writer, ranger,
+                                            machine, calibration, keep[1], progress)
+            run.planned = len(points) + len(auto.points)
+            run.auto = {"angles_deg": auto.angles_deg, "lines": len(fly_lines(auto.points)),
+                        "first_look_lines": len(fly_lines(points)),
+                        "outline_seen_share": round(auto.seen_share, 4),
+                        "coverage": outline_coverage(writer, auto, calibration,
+                                                     AUTO_SPACING_MM),
+                        "coverage_spacing_mm": AUTO_SPACING_MM}
+        elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
         else:

@@ -22,7 +22,8 @@ from dmdsm.marlin_patch import MINIMAL_STEP_RATE, MachineLimits
 
 BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
 MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
-HISTORY = 16                    # finished blocks kept for position_at() and step_edges()
+HISTORY = 512                   # finished blocks kept for position_at() and step_edges():
+# a fly line of joined short moves runs dozens of blocks between two queries of the sync wire
 
 
 @dataclass
@@ -72,10 +73,15 @@ class Move:
         d_dec = (rn * rn - r2 * r2) / (2 * A)
         if d_acc + d_dec > n:  # never reaches the nominal rate
             rn = math.sqrt((2 * A * n + r0 * r0 + r2 * r2) / 2)
-            if rn < max(r0, r2):  # cannot change speed that much: constant rate
-                rn = r0 = r2 = max(r0, r2)
-            d_acc = (rn * rn - r0 * r0) / (2 * A)
-            d_dec = max(n - d_acc, 0.0)
+            if rn < r0:  # cannot slow down that much: decelerate over the whole block
+                rn, r2 = r0, math.sqrt(max(r0 * r0 - 2 * A * n, MINIMAL_STEP_RATE ** 2))
+                d_acc, d_dec = 0.0, float(n)
+            elif rn < r2:  # cannot speed up that much: accelerate over the whole block
+                rn = r2 = math.sqrt(r0 * r0 + 2 * A * n)
+                d_acc, d_dec = float(n), 0.0
+            else:
+                d_acc = (rn * rn - r0 * r0) / (2 * A)
+                d_dec = max(n - d_acc, 0.0)
         self.r0, self.r1, self.r2, self.A = r0, rn, r2, A
         self.d_acc, self.d_dec = d_acc, d_dec
         self.d_cruise = max(n - d_acc - d_dec, 0.0)
@@ -292,9 +298,13 @@ class Planner:
         return self.steps / self.spu
 
     def _covering(self, t: float) -> Move | None:
-        for m in self.history:
-            if m.t0 is not None and m.t0 <= t < m.end:
+        for m in reversed(self.history):  # newest first: blocks run one after another
+            if m.t0 is None:
+                continue
+            if m.t0 <= t < m.end:
                 return m
+            if m.end <= t:  # every older block ended before this one
+                break
         return None
 
     def position_at(self, t: float) -> np.ndarray:
@@ -307,9 +317,11 @@ class Planner:
     def step_edges(self, axis: int, t_from: float, t_to: float) -> np.ndarray:
         """Times (s) of the STEP pulses of `axis` in (t_from, t_to], in order."""
         out = []
-        for m in self.history:
-            if m.t0 is None or m.end <= t_from or m.t0 > t_to:
+        for m in reversed(self.history):  # newest first, down to the window's start
+            if m.t0 is None or m.t0 > t_to:
                 continue
+            if m.end <= t_from:
+                break
             e = m.t0 + m.edges(axis)
             out.append(e[(e > t_from) & (e <= t_to) & (e < m.cut)])
-        return np.concatenate(out) if out else np.zeros(0)
+        return np.concatenate(out[::-1]) if out else np.zeros(0)

@@ -1,0 +1,204 @@
+"""Auto scans' paths (issue 32): the first look from the bounding cylinder's front plane, then
+lines that follow the outline it measured, at the table angles that see each part of it.
+
+Pure functions on numpy arrays. A follow line keeps one table angle and one level; along it
+the sensor moves X and Y together so the beam meets the outline `standoff_mm` away. Its Y
+never comes nearer than that (a lower envelope of the wanted Y with a bounded slope, then
+smoothed and lowered until it is below again), every junction of it can be taken at the line
+speed by Marlin's planner (junction deviation), and X always advances, so the counted X
+steps place each shot (docs/scanning.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from ..calibration.geometry import rodrigues
+from .fly import junction_speed_mm_s
+from .outline import Outline
+from .plan import Point, ScanPlan, expand
+from .reconstruct import table_frame
+
+FIRST_LOOK_ANGLES = 8     # table angles of the first look (every 45 deg)
+MAX_SLOPE = 1.0           # |dY/dX| of a follow line: X moves at >= 71 % of the path speed
+CANDIDATE_STEP_DEG = 15.0  # table angles the angle choice picks from
+EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (flat), each side
+
+
+def first_look_plan(plan: ScanPlan) -> ScanPlan:
+    """The first look: a fly pass from the bounding cylinder's front plane, levels every
+    first_look_step_mm over the height, FIRST_LOOK_ANGLES table angles, the plan's step."""
+    h, dz = plan.height_mm, plan.first_look_step_mm
+    levels = [round(z, 3) for z in np.arange(min(dz / 2, h / 2), h, dz)] or [h / 2]
+    angles = [360.0 * k / FIRST_LOOK_ANGLES for k in range(FIRST_LOOK_ANGLES)]
+    return replace(plan, mode="fly", levels_mm=levels, angles_deg=angles,
+                   half_width_mm=plan.radius_mm)
+
+
+def first_look_points(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:
+    """The first look's points in execution order, each line numbered."""
+    pts = expand(first_look_plan(plan), v, X_R)
+    return _numbered(pts, 0)
+
+
+def _numbered(pts: list[Point], first_line: int) -> list[Point]:
+    """Number the lines (same angle and level, consecutive) from first_line on."""
+    line, key = first_line - 1, None
+    for p in pts:
+        if (p.angle_index, p.level) != key:
+            line, key = line + 1, (p.angle_index, p.level)
+        p.line = line
+    return pts
+
+
+def _to_stage(P_obj: np.ndarray, theta_deg: float, n: np.ndarray, X_R: np.ndarray
+              ) -> np.ndarray:
+    """Object-frame points (k, 3) in the stage frame with the table at theta (mm)."""
+    R = rodrigues(np.asarray(n, float), math.radians(theta_deg))
+    return np.asarray(X_R, float) + P_obj @ (R @ table_frame(n)).T
+
+
+def outline_ring(outline: Outline, z_mm: float) -> np.ndarray:
+    """(nphi, 3) object-frame points of the outline at height z (mm): the measured radius
+    where the cell is closed, the bounding cylinder where it is not (a sector the first
+    look saw nothing in keeps the cylinder)."""
+    nphi = outline.r_mm.shape[0]
+    j = int(np.clip(np.searchsorted(outline.z_edges_mm, z_mm) - 1, 0, outline.r_mm.shape[1] - 1))
+    phi = np.radians((np.arange(nphi) + 0.5) * outline.phi_step_deg)
+    r = outline.filled_r_mm()[:, j]
+    r = np.where(np.isfinite(r), r, outline.radius_mm)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.full(nphi, z_mm)])
+
+
+def beam_hits_y(outline: Outline, theta_deg: float, level_mm: float, xs: np.ndarray,
+                ys: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray) -> np.ndarray:
+    """Stage Y (mm) where the beam of a sensor at (xs, ys) meets the outline ring at the
+    level's height, the table at theta; NaN where it misses. In the XY plane: the beam's
+    lines (along v's XY direction, from well behind the sensor) against the ring's edges."""
+    ring = _to_stage(outline_ring(outline, level_mm), theta_deg, n, X_R)[:, :2]
+    a, b = ring, np.roll(ring, -1, axis=0)
+    d = np.asarray(v, float)[:2] / np.linalg.norm(np.asarray(v, float)[:2])
+    o = np.column_stack([xs, np.broadcast_to(ys, np.shape(xs))]) - 400.0 * d
+    e = b - a  # (m, 2)
+    den = d[0] * e[:, 1] - d[1] * e[:, 0]  # cross(d, e)
+    w = a[None, :, :] - o[:, None, :]      # (k, m, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[:, 1] - w[..., 1] * e[:, 0]) / den
+        u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den
+    ok = (np.abs(den) > 1e-12) & (u >= 0) & (u <= 1) & (t > 0)
+    t = np.where(ok, t, np.inf).min(axis=1)
+    return np.where(np.isfinite(t), o[:, 1] + t * d[1], np.nan)
+
+
+def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: float,
+             junction_deviation_mm: float, every: int = 3) -> np.ndarray:
+    """Sensor Y (mm) per column X (xs, evenly spaced) never above y_want (farther from the
+    object; NaN: no surface there), with slope <= MAX_SLOPE, smooth enough that Marlin's
+    planner takes every junction of the vertices (every `every`-th column) at v_mm_s; the
+    line flat at its lowest wanted Y if no smoothing is enough."""
+    ok = np.isfinite(y_want)
+    if not ok.any():
+        raise ValueError("the beam meets nothing along the line")
+    # beside the surface the line runs on flat at its edges' Y, as its run-up and run-out do
+    filled = np.interp(xs, xs[ok], y_want[ok])
+    env = np.min(filled[None, :] + MAX_SLOPE * np.abs(xs[:, None] - xs[None, :]), axis=1)
+    for sigma in (1.0, 2.0, 4.0, 8.0):
+        y = gaussian_filter1d(env, sigma, mode="nearest")
+        y = y - max(float(np.max(y - env)), 0.0)
+        keep = np.arange(len(xs)) % every == 0
+        keep[[0, -1]] = True  # the vertices the line runs through (FlyLine.vertices)
+        vx = xs[keep]
+        vy = np.interp(vx, xs, y)
+        seg = np.column_stack([np.diff(vx), np.diff(vy)])
+        seg = np.vstack([[1.0, 0.0], seg, [1.0, 0.0]])  # the flat run-up and run-out
+        seg /= np.linalg.norm(seg, axis=1, keepdims=True)
+        if all(junction_speed_mm_s(seg[i], seg[i + 1], accel_mm_s2, junction_deviation_mm)
+               >= v_mm_s for i in range(len(seg) - 1)):
+            return y
+    return np.full(len(xs), float(np.min(env)))
+
+
+def incidence_cos(outline: Outline, theta_deg: float, v: np.ndarray, n: np.ndarray
+                  ) -> np.ndarray:
+    """(nphi, nz) cosine of the angle between the beam and each outline cell's outward
+    normal (in the table plane, from r(phi)) with the table at theta; <= 0: facing away."""
+    nphi = outline.r_mm.shape[0]
+    phi = np.radians((np.arange(nphi) + 0.5) * outline.phi_step_deg)
+    r = outline.filled_r_mm()
+    r = np.where(np.isfinite(r), r, outline.radius_mm)
+    dr = (np.roll(r, -1, axis=0) - np.roll(r, 1, axis=0)) / (2 * np.radians(
+        outline.phi_step_deg))
+    c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    tx, ty = dr * c - r * s, dr * s + r * c        # d/dphi of (r cos, r sin)
+    nx, ny = ty, -tx
+    norm = np.maximum(np.hypot(nx, ny), 1e-12)
+    B = table_frame(n)
+    R = rodrigues(np.asarray(n, float), math.radians(-theta_deg))
+    b = B.T @ R @ (np.asarray(v, float) / np.linalg.norm(v))   # the beam in the object frame
+    bn = math.hypot(b[0], b[1])
+    return -(nx * b[0] + ny * b[1]) / norm / max(bn, 1e-12)
+
+
+def choose_angles(outline: Outline, base_deg: list[float], v: np.ndarray, n: np.ndarray,
+                  max_incidence_deg: float, max_angles: int) -> tuple[list[float], float]:
+    """The table angles of the follow lines: the plan's, then greedily the candidate (every
+    CANDIDATE_STEP_DEG) that sees the most closed outline cells not yet seen within
+    max_incidence_deg, until all are seen or max_angles are taken. Returns the angles in
+    ascending order and the share of closed cells seen."""
+    closed = outline.closed()
+    lim = math.cos(math.radians(max_incidence_deg))
+    cands = list(np.arange(0.0, 360.0, CANDIDATE_STEP_DEG))
+    sees = {a: (incidence_cos(outline, a, v, n) >= lim) & closed for a in set(cands) | set(
+        base_deg)}
+    chosen = list(dict.fromkeys(float(a) for a in base_deg))
+    seen = np.zeros_like(closed)
+    for a in chosen:
+        seen |= sees[a]
+    while len(chosen) < max_angles:
+        gain = {a: int((sees[a] & ~seen).sum()) for a in cands if a not in chosen}
+        best = max(gain, key=gain.get, default=None)
+        if best is None or gain[best] == 0:
+            break
+        chosen.append(float(best))
+        seen |= sees[best]
+    share = float(seen.sum() / closed.sum()) if closed.any() else 0.0
+    return sorted(chosen), share
+
+
+def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: np.ndarray,
+                  n: np.ndarray, X_R: np.ndarray, v_mm_s: float, accel_mm_s2: float,
+                  junction_deviation_mm: float, first_line: int) -> list[Point]:
+    """The follow lines' points in execution order (angle by angle, level by level, X back
+    and forth), lines numbered from first_line: per line the columns where the beam meets
+    the outline and EDGE_COLUMNS either side, Y from follow_y."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    half = plan.radius_mm + EDGE_COLUMNS * plan.step_mm
+    xs_all = X_R[0] + np.arange(-half, half + 1e-9, plan.step_mm)
+    pts: list[Point] = []
+    k = 0
+    for ai, th in enumerate(angles_deg):
+        for li, h in enumerate(plan.levels_mm):
+            z_hit = h + plan.standoff_mm * v[2]  # where the beam meets the surface
+            ys = np.full(len(xs_all), X_R[1] - (plan.radius_mm + plan.standoff_mm) * v[1])
+            for _ in range(3):  # the sensor's X stays, its Y moves along the line: the beam
+                yh = beam_hits_y(outline, th, z_hit, xs_all, ys, v, n, X_R)  # shifts a bit
+                ys = np.where(np.isfinite(yh), yh - plan.standoff_mm * v[1], ys)
+            hit = np.nonzero(np.isfinite(yh))[0]
+            if not len(hit):
+                continue
+            sel = slice(max(hit[0] - EDGE_COLUMNS, 0), min(hit[-1] + EDGE_COLUMNS + 1,
+                                                           len(xs_all)))
+            xs, want = xs_all[sel], yh[sel] - plan.standoff_mm * v[1]
+            if len(xs) < 2:
+                continue
+            y = follow_y(xs, want, v_mm_s, accel_mm_s2, junction_deviation_mm)
+            order = range(len(xs)) if k % 2 == 0 else range(len(xs) - 1, -1, -1)
+            for ci in order:
+                pts.append(Point(len(pts), float(xs[ci]), float(y[ci]), float(X_R[2] + h),
+                                 float(th), li, ci, ai, first_line + k))
+            k += 1
+    return pts

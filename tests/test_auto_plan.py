@@ -1,0 +1,124 @@
+"""Auto scans' paths (issue 32), without boards: a follow line never comes nearer the outline
+than the plan's standoff, X always advances, Marlin takes every junction at the line speed,
+the table angles chosen see the outline within the plan's incidence, and every move of the
+follow lines is checked against the outline's keep-out."""
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dmdsm.host.scan.auto import (
+    beam_hits_y,
+    choose_angles,
+    first_look_plan,
+    follow_points,
+    follow_y,
+    incidence_cos,
+)
+from dmdsm.host.scan.fly import LinePath, junction_speed_mm_s
+from dmdsm.host.scan.fly_executor import fly_lines
+from dmdsm.host.scan.outline import Outline, OutlineKeepOut
+from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.marlin_patch import load_machine
+
+V = np.array([0.0656, 0.9955, -0.0678]) / np.linalg.norm([0.0656, 0.9955, -0.0678])
+N = np.array([-0.0007, 0.0022, 0.9999]) / np.linalg.norm([-0.0007, 0.0022, 0.9999])
+X_R = np.array([235.21, 288.17, 0.0])
+M = load_machine()
+
+
+def box_outline(w=50.0, d=30.0, h=40.0, radius=31.0, phi_step=5.0, z_step=4.0):
+    """The outline a perfect first look of a w x d box gives (radius per azimuth bin)."""
+    phi = np.radians((np.arange(int(360 / phi_step)) + 0.5) * phi_step)
+    r = np.minimum(w / 2 / np.maximum(np.abs(np.cos(phi)), 1e-9),
+                   d / 2 / np.maximum(np.abs(np.sin(phi)), 1e-9))
+    z = np.arange(0, h + 1e-9, z_step)
+    return Outline(phi_step, z, np.repeat(r[:, None], len(z) - 1, axis=1), radius, h)
+
+
+def bottle_outline(h=100.0, radius=36.0):
+    """A round bottle: 35 mm radius up to 60 mm, a 12 mm neck above."""
+    z = np.arange(0, h + 1e-9, 4.0)
+    zc = (z[:-1] + z[1:]) / 2
+    r = np.where(zc < 60, 35.0, 12.0)
+    return Outline(5.0, z, np.tile(r, (72, 1)), radius, h)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-15, 15), min_size=5, max_size=40), st.floats(40, 170))
+def test_a_follow_line_is_never_nearer_than_wanted_and_marlin_takes_it_at_speed(bumps, v):
+    xs = 200.0 + 2.0 * np.arange(len(bumps))
+    want = 270.0 + np.array(bumps)
+    y = follow_y(xs, want, v, 350.0, M.junction_deviation_mm)
+    assert np.all(y <= want + 1e-9)                     # never nearer the surface
+    assert np.all(np.abs(np.diff(y)) <= 2.0 * 1.0 + 1e-9)  # slope <= 1: X advances fast
+    keep = np.arange(len(xs)) % 3 == 0
+    keep[[0, -1]] = True
+    vx, vy = xs[keep], y[keep]
+    seg = np.vstack([[1.0, 0.0], np.column_stack([np.diff(vx), np.diff(vy)]), [1.0, 0.0]])
+    seg /= np.linalg.norm(seg, axis=1, keepdims=True)  # with the flat run-up and run-out
+    for a, b in zip(seg[:-1], seg[1:]):
+        assert junction_speed_mm_s(a, b, 350.0, M.junction_deviation_mm) >= v - 1e-6
+
+
+def test_marlins_junction_speed():
+    """Straight on: no limit; a right angle: sqrt(a jd sin45 / (1 - sin45)) (Marlin's
+    planner.cpp formula); a reversal: stop."""
+    u = np.array([1.0, 0.0])
+    assert junction_speed_mm_s(u, u, 350, 0.013) > 1e3
+    right = junction_speed_mm_s(u, np.array([0.0, 1.0]), 350, 0.013)
+    s = math.sqrt(0.5)
+    assert math.isclose(right, math.sqrt(350 * 0.013 * s / (1 - s)), rel_tol=1e-9)
+    assert junction_speed_mm_s(u, -u, 350, 0.013) == 0.0
+
+
+def test_the_beam_meets_the_box_face_where_it_is():
+    o = box_outline()
+    xs = X_R[0] + np.array([-40.0, -10.0, 0.0, 10.0, 40.0])
+    y = beam_hits_y(o, 0.0, 20.0, xs, X_R[1] - 30, V, N, X_R)
+    assert np.isnan(y[0]) and np.isnan(y[-1])             # beside the box
+    # the front face is 15 mm in front of the axis (n tilts it by < 0.1 mm)
+    np.testing.assert_allclose(y[1:4], X_R[1] - 15.0, atol=0.15)
+    y90 = beam_hits_y(o, 90.0, 20.0, xs[1:4], X_R[1] - 30, V, N, X_R)
+    np.testing.assert_allclose(y90, X_R[1] - 25.0, atol=0.15)  # turned: the long side's end
+
+
+def test_the_angles_chosen_see_a_box_and_face_it():
+    o = box_outline()
+    angles, share = choose_angles(o, [0.0, 90.0, 180.0, 270.0], V, N, 45.0, 16)
+    assert share == 1.0 and {0.0, 90.0, 180.0, 270.0} <= set(angles)
+    c = incidence_cos(o, 0.0, V, N)
+    front = np.argmin(np.abs((np.arange(72) + 0.5) * 5.0 - 270.0))
+    assert c[front, 0] > 0.99        # the front face, head on
+    assert c[(front + 36) % 72, 0] < 0  # the back face, facing away
+
+
+def test_a_bottle_is_followed_down_its_neck_and_every_move_is_clear():
+    o = bottle_outline()
+    plan = ScanPlan("bottle", radius_mm=36.0, height_mm=100.0, levels_mm=[30.0, 80.0],
+                    angles_deg=[0.0, 90.0], step_mm=2.0, average=12, mode="auto")
+    pts = follow_points(plan, o, [0.0, 90.0], V, N, X_R, 166.0, 350.0,
+                        M.junction_deviation_mm, 0)
+    keep = OutlineKeepOut(o, X_R, N)
+    for line in fly_lines(pts):
+        p = line.points
+        S = np.array([[q.x, q.y, q.z] for q in p])
+        assert not keep.inside(S, p[0].theta_deg).any()
+        LinePath(S[:, 0], S[:, 1])  # X advances on every segment
+        # the beam meets the surface the plan's standoff away where it meets it head on
+        mid = S[len(S) // 2]
+        r = 35.0 if p[0].level == 0 else 12.0
+        assert abs((X_R[1] - r) - mid[1] - plan.standoff_mm * V[1]) < 1.0
+    neck = [q for q in pts if q.level == 1]
+    assert max(q.y for q in neck) > X_R[1] - 12 - plan.standoff_mm - 1  # close to the neck
+
+
+def test_the_first_look_stays_outside_the_bounding_cylinder():
+    plan = ScanPlan("b", radius_mm=31.0, height_mm=40.0, levels_mm=[20.0], step_mm=2.0,
+                    average=12, mode="auto")
+    look = first_look_plan(plan)
+    assert look.mode == "fly" and len(look.angles_deg) == 8
+    assert min(look.levels_mm) > 0 and max(look.levels_mm) < 40.0
+    assert look.half_width_mm == plan.radius_mm

@@ -89,6 +89,55 @@ def test_the_first_block_after_idle_waits_unless_three_are_queued():
     assert blocks[0].t0 == pytest.approx(2.02)  # delivered when the third arrived
 
 
+def test_a_block_too_short_to_slow_down_in_decelerates_over_its_whole_length():
+    """Found by the auto scan's joined moves: a short block entered faster than it could
+    leave had a zero duration, so its STEP pulses all fell on one instant the sync wire
+    never saw (318 X steps lost on a 200 mm line)."""
+    p = Planner(M)
+    p.steps = p.to_steps([100, 100, 10, 0])
+    run = p.add(0.0, p.steps.copy(), p.to_steps([150, 100, 10, 0]), 167.0)
+    run.t0 = 0.0  # running: its exit is fixed at what the queue allowed then
+    short = p.add(0.0, p.to_steps([150, 100, 10, 0]), p.to_steps([154, 98.99, 10, 0]), 167.0)
+    short.entry, short.exit = 60.5, 5.0  # the planner's worst case: no room to slow
+    short.profile()
+    assert short.duration > 0
+    e = short.edges(X)
+    assert len(e) == 320 and np.all(np.diff(e) > 0) and e[-1] < short.duration
+    v_end = (short.r2 / (short.n / short.length))  # mm/s at its last step
+    assert v_end < 60.5 and v_end == pytest.approx(
+        np.sqrt(max(60.5 ** 2 - 2 * short.a * short.length, 0)), rel=0.02)
+
+
+def test_every_x_step_of_joined_moves_reaches_the_sync_wire():
+    """The X STEP wire over a line of 26 joined moves bending in Y (an auto scan's
+    follow line), the third block arriving on the very instant of a delivery: the sensor
+    board is given each of the 16000 edges once."""
+    from dmdsm.sim.servers.runner import SimConfig, Simulation
+
+    sim = Simulation(SimConfig(scene="empty"))
+    pl = sim.stage.planner
+    pl.steps = pl.to_steps([100, 100, 20, 0])
+    got: list[np.ndarray] = []
+    t = 0.0
+    xs = np.linspace(150, 250, 26)
+    pts = [(150.0, 100.0)] + [(x, 100 + 5 * np.sin(x / 15)) for x in xs[1:]] + [(300.0, 100.0)]
+    here = pl.steps.copy()
+    for i, (x, y) in enumerate(pts):
+        if i == 2:  # the third block arrives on a delivery's instant: it starts then
+            got.append(sim.x_step_edges(0.0, t))
+        nxt = pl.to_steps([x, y, 20, 0])
+        pl.add(t, here, nxt, 166.7)
+        here = nxt
+        pl.update(t)
+    while t < 5.0:
+        t2 = t + 0.0137
+        pl.update(t2)
+        got.append(sim.x_step_edges(t, t2))
+        t = t2
+    e = np.concatenate(got)
+    assert len(e) == 16000 and np.all(np.diff(e) > 0)
+
+
 def test_shots_are_placed_only_when_the_measured_duration_fits_the_model():
     model = LineMotion(100.0, 180.0, 80.0, ACCEL, SPU)
     tick_hz = 240e6

@@ -7,6 +7,7 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
@@ -88,7 +89,7 @@ class Simulation:
         else:
             self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor: SensorBoardInterface  # SensorBoard or RehostedSensor
-        self._last_x_edge = -1.0  # s: the last X STEP edge the wire delivered
+        self._last_x_edge = -math.inf  # s: the last X STEP edge the wire delivered
         sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
             from ..boards.sensor.rehost.board import RehostedSensor  # unicorn only when asked
@@ -129,8 +130,7 @@ class Simulation:
         delivery (its third queued block arrived then, ending the lone-block hold) steps
         first at that instant, so each delivery looks SYNC_LOOKBACK_S back and passes
         every edge once."""
-        edges = self.stage.step_edges(self.limits.axis("X"), max(t_from - SYNC_LOOKBACK_S,
-                                                                 0.0), t_to)
+        edges = self.stage.step_edges(self.limits.axis("X"), t_from - SYNC_LOOKBACK_S, t_to)
         edges = edges[edges > self._last_x_edge]
         if edges.size:
             self._last_x_edge = float(edges[-1])

@@ -84,6 +84,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
         state["bar"] = tqdm(total=planned, initial=writer.n_done, unit="pt", disable=args.json)
 
     def progress(done: int, total: int, timing: dict) -> None:
+        if total != state["planned"]:  # an auto scan plans its lines after its first look
+            state["planned"] = state["bar"].total = total
         state["bar"].update(done - state["bar"].n)
         log.debug("point %d: %s", done - 1,
                   " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in timing.items()))

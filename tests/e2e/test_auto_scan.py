@@ -1,0 +1,122 @@
+"""Auto scans in hil_sim (issue 32): the first look, the outline, lines that follow it in X and
+Y; every waveform placed where its shots were (the emulator's truth), the sensor never in the
+true object's keep-out, the points on the true surface, and Ctrl-C then the same command
+resuming the follow lines where they stopped."""
+
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+from fly_scan_helpers import scan_cmd, setup
+
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.links.stage import StageClient
+from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.points import scan_points
+from dmdsm.host.scan.reconstruct import object_points
+from dmdsm.host.scan.scanfile import read_scan
+from dmdsm.host.scan.session import run_plan
+from dmdsm.sim.boards.sensor.core_board import TICK_HZ
+
+PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[12.0, 26.0], angles_deg=[0.0, 90.0],
+            step_mm=2.0, average=12, mode="auto", first_look_step_mm=10.0)
+
+
+def record(sim):
+    """Every laser shot's device tick, true sensor position and table angle."""
+    shots = []
+    pose = sim.pose
+
+    def recording(t):
+        S, theta = pose(t)
+        shots.append((round(t * TICK_HZ), *S, theta))
+        return S, theta
+
+    sim.sensor.pose = recording
+    return shots
+
+
+def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emulator,
+                                                                           tmp_path):
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=21)
+    ranging, cal, text, _ = setup(emu, tmp_path)
+    plan = ScanPlan("aluminium_block", "aluminium", **PLAN)
+    shots = record(emu.sim)
+    sensor = SensorClient(emu.sensor)
+    try:
+        with StageClient(emu.stage) as st:
+            run = run_plan(sensor, st, plan, calibration=cal, calibration_toml=text,
+                           setup=ranging, db=tmp_path / "db", home=False)
+    finally:
+        sensor.close()
+    assert run.status == "complete"
+    a = run.auto
+    assert a["first_look_lines"] == 4 * 8 and {0.0, 90.0} <= set(a["angles_deg"])
+    assert a["outline_seen_share"] == 1.0  # a box's four faces, each seen head on
+    assert a["lines"] == 2 * len(a["angles_deg"]) and min(a["coverage"].values()) > 0.9
+    data = read_scan(run.path, waveforms=False)
+    p = data.points
+    follow = p["point_index"] >= a["first_look_lines"]
+    ys = [np.ptp(p["stage_position_mm"][p["point_index"] == i, 1])
+          for i in np.unique(p["point_index"][follow])]
+    assert max(ys) > 0.3  # lines that move Y as well as X
+    # each waveform where the mean of its shots' true positions was (the stage's 2 um
+    # scatter aside): counted X on the path gives Y too
+    sh = np.array(shots)
+    err = []
+    for t, k, S in zip(p["timestamp"], p["n_average"], p["stage_position_mm"]):
+        i = np.searchsorted(sh[:, 0], t)
+        err.append(S - sh[i:i + k, 1:4].mean(axis=0))
+    err = np.abs(np.array(err))
+    assert err[follow].max() < 0.015 and err[~follow].max() < 0.015, err.max(axis=0)
+    # the sensor never came within the keep-out margin (2 mm) of the true block
+    truth = emu.sim.truth_objects()[0]
+    n, X_R = np.asarray(cal["n"]), np.asarray(cal["X_R"])
+    S_obj = object_points(sh[:, 1:4], sh[:, 4], n, X_R)
+    assert truth.signed_distance(S_obj).max() < -2.0
+    # and the points lie on its surface
+    pts = scan_points(data)
+    d = np.abs(truth.signed_distance(pts["oa"]["P"]))
+    assert np.median(d) < 0.1, np.percentile(d, [50, 95])
+
+
+def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, tmp_path):
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=22, frozen_noise=True)
+    setup(emu, tmp_path)
+    plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, "levels_mm": [20.0]})
+    (tmp_path / "plan.toml").write_text(plan.to_toml())
+    path = tmp_path / "db" / "scans" / "cut.h5"
+    n_look = 4 * 8
+    proc = subprocess.Popen(scan_cmd(emu, tmp_path, "cut", "--json"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 600
+
+    def lines():
+        try:
+            return len(set(read_scan(path, waveforms=False).points["point_index"].tolist()))
+        except Exception:
+            return 0
+
+    while lines() <= n_look and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "run the same command to continue" in err, err
+    cut = read_scan(path, waveforms=False)
+    done_lines = sorted(set(cut.points["point_index"].tolist()))
+    assert done_lines == list(range(len(done_lines))) and len(done_lines) > n_look
+    r = subprocess.run(scan_cmd(emu, tmp_path, "cut", "--json"), capture_output=True,
+                       text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    whole = read_scan(path, waveforms=False)
+    assert whole.entry["status"] == "complete"
+    idx = sorted(set(whole.points["point_index"].tolist()))
+    assert idx == list(range(n_look + summary["auto"]["lines"]))
+    np.testing.assert_array_equal(whole.points["stage_position_mm"][:cut.n_points],
+                                  cut.points["stage_position_mm"])

@@ -106,7 +106,7 @@ def cmd_db(args: argparse.Namespace) -> int:
                 print(f"{shown(r['scan_id']):<32} {shown(r['object_id']):<18} "
                       f"{shown(r['material']):<10} "
                       f"{r['status']:<11} {r['n_points']:>6} pts  {r['started']}  "
-                      f"{r['check']}")
+                      f"{_coverage(r['coverage']):<20} {r['check']}")
             return 0
         if args.action == "rebuild":
             n, skipped = rebuild(args.db)
@@ -231,3 +231,15 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
               f"block at x {f['pose']['x_mm']:.3f} y {f['pose']['y_mm']:.3f} mm, yaw "
               f"{f['pose']['yaw_deg']:.3f} deg")
     return 0
+
+
+def _coverage(text: str) -> str:
+    """An auto scan's coverage for the list ("cov OA 98% US 97%"), "" for other scans."""
+    try:
+        c = json.loads(text) if text else {}
+        if not c:
+            return ""
+        return "cov " + " ".join(f"{m.upper()} {100 * float(c[m]):.0f}%" for m in ("oa", "us")
+                                 if m in c)
+    except (ValueError, TypeError, AttributeError):
+        return "cov ?"

@@ -24,11 +24,12 @@ CREATE TABLE IF NOT EXISTS scans (
     n_points INTEGER NOT NULL,
     n_planned INTEGER NOT NULL,
     plan_hash TEXT NOT NULL,
-    content_hash TEXT NOT NULL DEFAULT ''  -- sha256 of the file once complete
+    content_hash TEXT NOT NULL DEFAULT '',  -- sha256 of the file once complete
+    coverage TEXT NOT NULL DEFAULT ''       -- an auto scan's coverage per modality (JSON)
 );
 """
 COLUMNS = ("scan_id", "object_id", "material", "started", "finished", "status", "path",
-           "n_points", "n_planned", "plan_hash", "content_hash")
+           "n_points", "n_planned", "plan_hash", "content_hash", "coverage")
 
 
 class CatalogueError(ValueError):
@@ -50,8 +51,12 @@ def connect(db_dir: Path, create: bool = False) -> sqlite3.Connection:
     try:
         con = sqlite3.connect(path, timeout=30)
         con.execute(SCHEMA)
-        bad = [c for c in COLUMNS if c not in
-               {r[1] for r in con.execute("PRAGMA table_info(scans)")}]
+        have = {r[1] for r in con.execute("PRAGMA table_info(scans)")}
+        if "coverage" not in have and "scan_id" in have:  # a catalogue from before auto scans
+            con.execute("ALTER TABLE scans ADD COLUMN coverage TEXT NOT NULL DEFAULT ''")
+            con.commit()
+            have.add("coverage")
+        bad = [c for c in COLUMNS if c not in have]
         if bad:
             con.close()
             raise sqlite3.DatabaseError(f"table scans lacks {', '.join(bad)}")
@@ -72,7 +77,8 @@ def record(db_dir: Path, scan_id: str, *, n_planned: int, content_hash: str = ""
     row = (scan_id, str(s.sample.get("name", "")), str(s.sample.get("material", "")),
            str(s.entry.get("start_time", "")), str(s.entry.get("end_time", "")),
            status, str(path.relative_to(db_dir)), s.n_points,
-           n_planned, str(s.entry.get("plan_hash", "")), content_hash)
+           n_planned, str(s.entry.get("plan_hash", "")), content_hash,
+           str(s.entry.get("coverage", "")))
     with connect(db_dir) as con:
         con.execute(f"INSERT OR REPLACE INTO scans ({', '.join(COLUMNS)}) VALUES "
                     f"({', '.join('?' * len(COLUMNS))})", row)

@@ -198,8 +198,9 @@ class ScanWriter:
         self.f.flush()
         self.n_done = i + k
 
-    def close(self, status: str) -> None:
-        """Close the file, marking it `complete` or `interrupted` (readable either way)."""
+    def close(self, status: str, attrs: dict[str, str] | None = None) -> None:
+        """Close the file, marking it `complete` or `interrupted` (readable either way);
+        attrs: more text attributes of /entry (an auto scan's coverage, as JSON)."""
         import h5py
 
         if not self.f.id.valid:
@@ -207,7 +208,8 @@ class ScanWriter:
         self.f.close()
         with h5py.File(self.path, "r+") as f:
             f["/entry"].attrs.update(status=status,
-                                     end_time=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+                                     end_time=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                     **(attrs or {}))
         _drop_writer_lock(self.path, self.lock)
 
 

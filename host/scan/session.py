@@ -9,6 +9,7 @@ or a lost board closes the file as `interrupted`; calling it again continues.
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -222,7 +223,9 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         raise
     finally:
         run.points = writer.n_done
-        writer.close(run.status)
+        writer.close(run.status, {"coverage": json.dumps(
+            {**run.auto["coverage"], "spacing_mm": run.auto["coverage_spacing_mm"]})}
+            if run.auto else None)
         record(Path(db), scan_id, n_planned=len(points),
                content_hash=file_hash(path) if run.status == "complete" else "")
     return run

@@ -80,6 +80,16 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     pts = scan_points(data)
     d = np.abs(truth.signed_distance(pts["oa"]["P"]))
     assert np.median(d) < 0.1, np.percentile(d, [50, 95])
+    # the coverage is in the file, the catalogue and `db list`
+    import json
+    import sys
+
+    stored = json.loads(data.entry["coverage"])
+    assert stored["oa"] == a["coverage"]["oa"] and stored["spacing_mm"] == 2.0
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "db", "list", "--db",
+                        str(tmp_path / "db")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and f"cov OA {100 * a['coverage']['oa']:.0f}%" in r.stdout, \
+        r.stdout
 
 
 def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, tmp_path):

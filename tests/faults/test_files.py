@@ -138,3 +138,19 @@ def test_a_recording_from_acquire_given_as_a_scan_is_named(tmp_path):
     r, took = run("reconstruct", str(rec))
     one_line_error(r, took)
     assert "is a recording from `dmdsm acquire`, not a scan" in r.stderr
+
+
+def test_a_catalogue_from_before_auto_scans_gains_the_coverage_column(good, tmp_path):
+    """A catalogue written before scans had a coverage keeps its rows and opens; the column
+    is added, empty, and `db list` shows no coverage for those scans."""
+    db, _ = good
+    copy = tmp_path / "db"
+    shutil.copytree(db, copy)
+    cat = copy / "catalogue.sqlite"
+    with sqlite3.connect(cat) as con:
+        con.execute("ALTER TABLE scans DROP COLUMN coverage")
+    con.close()
+    rows = list_scans(copy)
+    assert [x["status"] for x in rows] == ["complete"] and rows[0]["coverage"] == ""
+    r, took = run("db", "list", "--db", str(copy))
+    assert r.returncode == 0 and "cov" not in r.stdout and "complete" in r.stdout, r.stderr

@@ -91,3 +91,43 @@ def test_step_then_fly_both_meet_the_paper_and_fly_places_every_waveform(emulato
           f"{fits['oa']['e_mean_mm']:.3f} +- {fits['oa']['e_std_mm']:.3f}, US "
           f"{step_fits['us']['e_mean_mm']:.3f} +- {step_fits['us']['e_std_mm']:.3f} / "
           f"{fits['us']['e_mean_mm']:.3f} +- {fits['us']['e_std_mm']:.3f}")
+
+
+def test_an_auto_scans_joined_moves_place_every_waveform_on_the_stage_under_test(emulator,
+                                                                                tmp_path):
+    """Issue 32: a follow line is a chain of G1 moves bending in Y that Marlin's planner
+    joins. Every X step of it must reach the sensor's sync input (else the line is refused
+    and measured again), and each waveform lands where the steppers were, X and Y: on the
+    real Marlin (`make check-marlin`) as on the emulator."""
+    from dmdsm.host.scan.plan import ScanPlan
+
+    emu = emulator(speed=SPEED, scene="aluminium_block", seed=23, stage_firmware=ELF)
+    setup(emu, tmp_path)
+    plan = ScanPlan("aluminium_block", "aluminium", radius_mm=31.0, height_mm=40.0,
+                    levels_mm=[20.0], angles_deg=[0.0, 90.0], step_mm=2.0, average=12,
+                    mode="auto", first_look_step_mm=20.0)
+    (tmp_path / "plan.toml").write_text(plan.to_toml())
+    shots = record_poses(emu.sim)
+    r = subprocess.run(scan_cmd(emu, tmp_path, "auto", "--json"), capture_output=True,
+                       text=True, timeout=3600)
+    assert r.returncode == 0, r.stderr
+    auto = json.loads(r.stdout.splitlines()[-1])["auto"]
+    p = read_scan(tmp_path / "db" / "scans" / "auto.h5", waveforms=False).points
+    follow = p["point_index"] >= auto["first_look_lines"]
+    assert auto["lines"] >= 4 and follow.sum() > 60
+    rec = np.array(shots)
+    rec = rec[np.argsort(rec[:, 0])]
+    err = []
+    for ts, n, S in zip(p["timestamp"], p["n_average"], p["stage_position_mm"]):
+        i = np.searchsorted(rec[:, 0], int(ts))
+        err.append(S[:2] - rec[i:i + int(n), 1:3].mean(axis=0))
+    err = np.array(err)
+    offset = np.median(err[:, 0])  # the homing's step past the switch, as above
+    assert abs(offset) * 1e3 <= 2 * STEP_UM + 2.0, offset
+    dx = np.abs(err[follow, 0] - offset)
+    # Y from the counted X on the path: within a Y step (10 um) of where Y was, plus the
+    # Y homing's offset, whatever the planner did at the junctions
+    dy = np.abs(err[follow, 1] - np.median(err[follow, 1]))
+    assert dx.max() < 0.008 and dy.max() < 0.015, (dx.max(), dy.max())
+    print(f"\nauto placement on the follow lines: X {dx.max() * 1e3:.1f} um, Y "
+          f"{dy.max() * 1e3:.1f} um max about the homing offsets")

@@ -5,6 +5,7 @@ import subprocess
 import sys
 import tomllib
 
+import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -47,11 +48,14 @@ def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
 
 @settings(max_examples=60, deadline=None)
 @given(w=st.floats(1, 250), d=st.floats(1, 250), h=st.floats(5, 400), round_=st.booleans(),
-       mode=st.sampled_from(["step", "fly"]))
+       mode=st.sampled_from(["step", "fly", "auto"]))
 def test_a_plan_for_any_size_that_fits_the_scanner_loads_back_the_same(w, d, h, round_, mode):
     plan = plan_for_size("obj", (w, d, h), round_, "paper", mode)
     doc = tomllib.loads(plan.to_toml())
     assert doc["object"]["radius_mm"] >= max(w, d) / 2 and doc["scan"]["levels_mm"][0] <= h
+    if mode == "auto":  # every 2 mm over the height, clear of the turntable's keep-out
+        lv = doc["scan"]["levels_mm"]
+        assert lv[0] >= 4.5 and np.allclose(np.diff(lv), 2.0) and lv[-1] > h - 3.0
     assert plan.hash() == plan_for_size("obj", (w, d, h), round_, "paper", mode).hash()
 
 

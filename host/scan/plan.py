@@ -184,6 +184,9 @@ class ScanPlan:
 AUTO_SPACING_MM = 2.0  # an auto plan's levels apart (the coverage target's spacing)
 AUTO_LOWEST_MM = 4.5   # its lowest level: the turntable's keep-out ends 2 mm above the table
 FLY_AVERAGE = 12  # shots per fly waveform: 12 at 1 kHz, 2 mm apart = 167 mm/s (docs/scanning.md)
+# an auto scan's: 24, so 83 mm/s: its lines are short, and at 167 mm/s the run-up and
+# run-out (v^2 / 2a = 40 mm each at 350 mm/s^2) would take most of every line's time
+AUTO_AVERAGE = 24
 
 
 def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: bool,
@@ -207,7 +210,8 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                     half_width_mm=max(mm(0.35 * w), 0.1),
                     step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
-                    **({"average": FLY_AVERAGE} if mode != "step" else {}))
+                    **({"average": FLY_AVERAGE} if mode == "fly" else
+                       {"average": AUTO_AVERAGE} if mode == "auto" else {}))
     plan.validate()
     return plan
 

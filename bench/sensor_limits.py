@@ -31,7 +31,7 @@ is within 2x the reference;
 the limits are the range of distances about 8 mm at normal incidence, and the largest
 incidence at 8 mm, over which every cell passes.
 
-    python bench/sensor_limits.py [--quick] [--json FILE] [--average 12,16] [--waveforms 20]
+    python bench/sensor_limits.py [--quick] [--json FILE] [--average 12,16,24] [--waveforms 20]
 """
 
 from __future__ import annotations
@@ -48,7 +48,12 @@ import numpy as np  # noqa: E402
 
 from dmdsm.host.ranging.calibrate import distance_std_mm  # noqa: E402
 from dmdsm.host.ranging.matched_filter import MatchedFilter  # noqa: E402
-from dmdsm.host.scan.plan import FLY_AVERAGE, ScanPlan, point_ranger  # noqa: E402
+from dmdsm.host.scan.plan import (  # noqa: E402
+    AUTO_AVERAGE,
+    FLY_AVERAGE,
+    ScanPlan,
+    point_ranger,
+)
 from dmdsm.sim.boards.sensor.core_board import TICK_HZ  # noqa: E402
 from dmdsm.sim.data.block_data import block_rig, ranging_calibration  # noqa: E402
 from dmdsm.sim.data.dataset import true_setup  # noqa: E402
@@ -56,6 +61,7 @@ from dmdsm.sim.data.rig_data import DirectRig  # noqa: E402
 from dmdsm.sim.physics.scene import Box, Scene, SceneObject, table_frame, unit  # noqa: E402
 
 STEP_AVERAGE = ScanPlan("x").average  # step and shoot's on-board average (16)
+MODE_OF = {FLY_AVERAGE: "fly", STEP_AVERAGE: "step", AUTO_AVERAGE: "auto"}  # 12, 16, 24
 DISTANCES = (4.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 40.0)  # beam distance (mm)
 ANGLES = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)  # incidence (deg)
 MATERIALS = ("aluminium", "plastic", "paper")
@@ -227,8 +233,8 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true",
                     help="4 distances, 4 incidences, 10 waveforms, average 12 only")
     ap.add_argument("--json", type=str, default=None, help="write every cell and limit here")
-    ap.add_argument("--average", default=f"{FLY_AVERAGE},{STEP_AVERAGE}",
-                    help="on-board averages (fly/auto 12, step 16)")
+    ap.add_argument("--average", default=f"{FLY_AVERAGE},{STEP_AVERAGE},{AUTO_AVERAGE}",
+                    help="on-board averages (fly 12, step 16, auto 24)")
     ap.add_argument("--waveforms", type=int, default=20, help="waveforms per cell")
     ap.add_argument("--materials", default=",".join(MATERIALS))
     ap.add_argument("--distances", default=",".join(f"{d:g}" for d in DISTANCES))
@@ -284,7 +290,7 @@ def main() -> int:
                     "cells": cells, "limits": {}}
     for average in averages:
         print(f"\n=== on-board average {average} "
-              f"({'fly/auto' if average == FLY_AVERAGE else 'step'}) ===")
+              f"({MODE_OF.get(average, 'not a plan default')}) ===")
         for material in materials:
             cs = [c for c in cells if c["average"] == average and c["material"] == material]
             print(f"\n{material}")
@@ -321,7 +327,7 @@ def main() -> int:
             cs = [c for c in cells if c["average"] == average and c["material"] == material]
             lim[material] = {m: limits(cs, m, distances, angles) for m in MODS}
         result["limits"][str(average)] = lim
-        print(f"\naverage {average}:")
+        print(f"\naverage {average} ({MODE_OF.get(average, 'not a plan default')}):")
         print(f"  {'material':>10} {'mod':>3} {'ref std':>8} {'distances at 0 deg':>19} "
               f"{'max incidence at ' + format(STANDOFF, 'g') + ' mm':>25}   distances by "
               f"incidence")

@@ -136,14 +136,7 @@ class PtyServer:
             if readable:
                 self._watch_scene(host_spoke=True)
             with self.lock:
-                for p in self.ports.values():
-                    if p.master in readable:
-                        try:
-                            data = os.read(p.master, 65536)
-                        except OSError:
-                            data = b""
-                        if data:
-                            self.sim.write(p.name, data)
+                self._take_input(readable)
                 target = sim0 + (time.monotonic() - wall0) * self.speed
                 left = min(max(target - self.sim.t, 0.0), 0.05)
                 while True:  # advance in short chunks and pump the ptys between them
@@ -159,6 +152,25 @@ class PtyServer:
                     left -= dt
                     if left <= 1e-9:
                         break
+                    # behind the wall clock the loop runs 50 ms at once: take what the host
+                    # sent meanwhile at each chunk, so a reply-driven exchange (ok, next
+                    # line) costs a chunk of simulated time, not the whole 50 ms
+                    try:
+                        more, _, _ = select.select(fds, [], [], 0)
+                    except (OSError, ValueError):
+                        more = []
+                    self._take_input(more)
+
+    def _take_input(self, readable: list[int]) -> None:
+        """Bytes the host wrote to the readable ports, into the simulation now."""
+        for p in self.ports.values():
+            if p.master >= 0 and p.master in readable:
+                try:
+                    data = os.read(p.master, 65536)
+                except OSError:
+                    data = b""
+                if data:
+                    self.sim.write(p.name, data)
 
     def _pump_out(self, p: Port, dt: float) -> None:
         p.pending += self.sim.read(p.name)

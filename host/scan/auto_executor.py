@@ -20,7 +20,14 @@ from ..ranging.point import PointRanger
 from .auto import choose_angles, first_look_plan, follow_points
 from .common import Progress, ScanStats
 from .coverage import coverage
-from .fly_executor import FlyLine, fly_lines, fly_speed, line_path, run_fly_scan
+from .fly_executor import (
+    FlyLine,
+    fly_lines,
+    fly_speed,
+    joins_previous,
+    line_path,
+    run_fly_scan,
+)
 from .outline import Outline, OutlineKeepOut, check_moves, outline_from_points
 from .plan import Point, ScanPlan
 from .reconstruct import object_points, stage_points
@@ -64,12 +71,15 @@ def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
                                z_step_mm=plan.first_look_step_mm)
 
 
-def _line_targets(line: FlyLine, plan: ScanPlan, machine: MachineLimits
-                  ) -> tuple[list[Waypoint], list[str]]:
-    """Run-up start, vertices and run-out end of a line as waypoints, labelled."""
+def _line_targets(line: FlyLine, plan: ScanPlan, machine: MachineLimits,
+                  start: Waypoint | None = None) -> tuple[list[Waypoint], list[str]]:
+    """Run-up start (or `start`, where the stage stands, for a line joined to the one
+    before), vertices and run-out end of a line as waypoints, labelled."""
     p0 = line.points[0]
-    path = line_path(line, plan, machine)
+    path = line_path(line, plan, machine, None if start is None else start[:2])
     t = [(float(x), float(y), p0.z, p0.theta_deg) for x, y in zip(path.x, path.y)]
+    if start is not None:
+        t[0] = start
     labels = [f"line {line.index}'s run-up start"] + [
         f"line {line.index} (X{x:.1f})" for x in path.x[1:-1]] + [
         f"line {line.index}'s run-out end"]
@@ -97,11 +107,23 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
     zones = [OutlineKeepOut(outline, X_R, n), turntable]
     front_y = look[0].y  # the first look's front plane: outside the bounding cylinder
     all_lines = fly_lines(look + pts)
-    prev = all_lines[n_look - 1]
-    here = _line_targets(prev, first_look_plan(plan), machine)[0][-1]
+    here = _line_targets(all_lines[n_look - 1], first_look_plan(plan), machine)[0][-1]
+    prev: FlyLine | None = None  # the follow lines' run (FlyRun) starts with a move
     via: dict[int, list[Waypoint]] = {}
     for line in all_lines[n_look:]:
         targets, labels = _line_targets(line, plan, machine)
+        # run on from the previous line's end where the geometry allows (FlyRun does the
+        # same), else a move of its own; both checked, and the line itself from its run-up
+        # start (a measurement taken again goes back along it)
+        check_moves(targets[1:], labels[1:], targets[0], machine, zones)
+        if joins_previous(prev, line, plan, machine):
+            joined, jl = _line_targets(line, plan, machine, start=here)
+            try:
+                check_moves(joined[1:], jl[1:], here, machine, zones)
+                here, prev = targets[-1], line
+                continue
+            except UnsafeMove:
+                pass
         start = targets[0]
         try:
             check_moves([start], [f"the way to line {line.index}"], here, machine, zones)
@@ -113,8 +135,8 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
                                         f"the way in to line {line.index}"], here, machine,
                         zones)
             via[line.index] = way
-        check_moves(targets[1:], labels[1:], start, machine, zones)
-        here = targets[-1]
+        via.setdefault(line.index, [])  # a move of its own: not joined
+        here, prev = targets[-1], line
     return AutoPlan(outline, angles, share, pts, via)
 
 

@@ -86,6 +86,13 @@ class FlyLine:
         """True if the line moves Y as well as X."""
         return len({round(p.y, 6) for p in self.points}) > 1
 
+    @property
+    def joined(self) -> bool:
+        """True if the stage runs the line as joined moves (a polyline, or any line of an
+        auto scan, whose lines are numbered): its run-up in pieces, so Marlin starts it at
+        once (no lone-block hold) with the whole line in its queue."""
+        return self.is_polyline or self.points[0].line >= 0
+
     def vertices(self, every: int = 1) -> list[tuple[float, float]]:
         """(X, Y) mm the line's joined moves go through, in execution order: the points of
         every `every`-th column (the columns follow_y checked the junctions of), the first
@@ -117,11 +124,30 @@ def fly_speed(plan: ScanPlan, machine: MachineLimits) -> tuple[float, float]:
     return min(f_mm_min / 60.0, machine.max_feedrate[ax]), accel
 
 
+TRANSITION_MM = 8.0  # an auto line's run-up starts with this much X over which the stage also
+# moves to the line's Y and Z from where the previous line ended (no stop, no separate move)
+
+
 def line_ends(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> tuple[float, float]:
-    """X (mm) where the line's move starts and ends: the planned span plus the ramps."""
+    """X (mm) where the line's move starts and ends: the planned span plus the ramps (an
+    auto line's also the transition's X, TRANSITION_MM)."""
     v, a = fly_speed(plan, machine)
-    r = ramp_mm(v, a, plan.step_mm)
+    r = ramp_mm(v, a, plan.step_mm) + (TRANSITION_MM if line.points[0].line >= 0 else 0.0)
     return line.x_first - line.direction * r, line.x_last + line.direction * r
+
+
+def joins_previous(prev: FlyLine | None, line: FlyLine, plan: ScanPlan,
+                   machine: MachineLimits) -> bool:
+    """True if an auto line can start from where `prev` ended (its run-out end): the same
+    table angle, and that end at or beyond this line's run-up start, so X only advances
+    from it. The stage then climbs to the line's level during the run-up's first
+    TRANSITION_MM."""
+    if prev is None or line.points[0].line < 0 or \
+            prev.points[0].theta_deg != line.points[0].theta_deg:
+        return False
+    xs, _ = line_ends(line, plan, machine)
+    _, xe_prev = line_ends(prev, plan, machine)
+    return line.direction * (xs - xe_prev) >= -1e-9
 
 
 VERTEX_EVERY = 3   # a polyline's vertices: every 3rd column (fewer G-code lines per second)
@@ -130,16 +156,22 @@ RUNUP_PIECE_MM = 8.0  # a polyline's run-up in pieces: Marlin starts the first b
 # the whole line in the queue, so the line reaches its speed before its first point
 
 
-def line_path(line: FlyLine, plan: ScanPlan, machine: MachineLimits) -> LinePath:
+def line_path(line: FlyLine, plan: ScanPlan, machine: MachineLimits,
+              start: tuple[float, float] | None = None) -> LinePath:
     """The line's XY path: run-up start, its vertices, run-out end (the run-up and the
-    run-out along X at the first and last point's Y)."""
+    run-out along X at the first and last point's Y). An auto line's run-up begins with
+    the transition (TRANSITION_MM of X, where Y and Z reach the line's) from `start`, the
+    (X, Y) the stage stands at (None: the run-up start, at the line's Y)."""
     xs, xe = line_ends(line, plan, machine)
     y0 = line.points[0].y
-    if not line.is_polyline:  # straight: one G1
+    if not line.joined:  # a fly scan's line: one G1
         return LinePath(np.array([xs, xe]), np.array([y0, line.points[-1].y]))
-    k = max(int(math.ceil(abs(line.x_first - xs) / RUNUP_PIECE_MM)), 1)
-    run_up = [(xs + (line.x_first - xs) * i / k, y0) for i in range(k)]
-    vx = [*run_up, *line.vertices(VERTEX_EVERY), (xe, line.points[-1].y)]
+    x_from, y_from = start if start is not None else (xs, y0)
+    xt = xs + line.direction * TRANSITION_MM  # the transition ends here
+    k = max(int(math.ceil(abs(line.x_first - xt) / RUNUP_PIECE_MM)), 1)
+    run_up = [(x_from, y_from)] + [(xt + (line.x_first - xt) * i / k, y0) for i in range(k)]
+    inner = line.vertices(VERTEX_EVERY) if line.is_polyline else [(line.x_first, y0)]
+    vx = [*run_up, *inner, (xe, line.points[-1].y)]
     return LinePath(np.array([p[0] for p in vx]), np.array([p[1] for p in vx]))
 
 
@@ -151,7 +183,8 @@ def run_fly_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, points: lis
     """Measure the lines after the last one in the file; returns what this run did
     (progress: points in the file, planned, phase times s, after each stored line; via:
     waypoints before a line's run-up start, by line index)."""
-    run = FlyRun(stage, sensor, plan, points, writer, ranger, machine, progress)
+    run = FlyRun(stage, sensor, plan, points, writer, ranger, machine, progress,
+                 separate=set(via or {}))
     for i, w in (via or {}).items():
         run.lines[i].via = list(w)
     return run.run()
@@ -173,9 +206,14 @@ class FlyRun:
 
     def __init__(self, stage: Stage, sensor: StreamSensor, plan: ScanPlan,
                  points: list[Point], writer: ScanWriter, ranger: PointRanger,
-                 machine: MachineLimits, progress: Progress | None = None) -> None:
-        """Syncs the sensor's clock (16 exchanges); nothing moves until run()."""
+                 machine: MachineLimits, progress: Progress | None = None,
+                 separate: set[int] | None = None) -> None:
+        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). separate:
+        lines that must not start from where the previous one ended (their way there was
+        checked as a move of its own)."""
         self.stage, self.sensor, self.plan, self.points = stage, sensor, plan, points
+        self.separate = separate or set()
+        self.at_end_of: FlyLine | None = None  # the line whose run-out end the stage is at
         self.writer, self.ranger, self.machine, self.progress = writer, ranger, machine, progress
         self.stats = ScanStats()
         self.t_start = time.monotonic()
@@ -240,13 +278,39 @@ class FlyRun:
         moves to this one's run-up; raises FlyScanError if no measurement is kept."""
         p0 = line.points[0]
         xs, xe = line_ends(line, self.plan, self.machine)
+        prev, self.at_end_of = self.at_end_of, None
+        joined = line.index not in self.separate and joins_previous(prev, line, self.plan,
+                                                                    self.machine)
         reasons: list[str] = []
         attempts = 0
         while attempts < RETRIES:
             attempts += 1
             timing = dict.fromkeys(PHASES, 0.0)
-            for wx, wy, wz, wa in line.via:  # around the object (checked with the plan)
-                self.stage.move(x=wx, y=wy, z=wz, a=wa, feed_mm_min=self.plan.feed_mm_min)
+            if joined and attempts == 1:  # on from the previous line's run-out end, at once
+                _, x_from = line_ends(prev, self.plan, self.machine)
+                start = (x_from, prev.points[-1].y)
+                t1 = time.monotonic()
+                try:
+                    rows = self.measure(line, LineMotion(x_from, xe, self.v, self.a, self.spu),
+                                        line_path(line, self.plan, self.machine, start),
+                                        z_mm=p0.z)
+                    self.at_end_of = line
+                    return MeasuredLine(rows, line, attempts, timing)
+                except LineRejected as e:
+                    reasons.append(str(e))
+                    self.stats.lost += 1
+                    continue
+                finally:
+                    timing["acquire"] = time.monotonic() - t1
+                    self.exchanges = self.exchanges[-400:]
+                    self.clock = fit_clock(self.exchanges)
+            if attempts > 1 and line.joined:  # back along the line itself (checked with
+                back = line_path(line, self.plan, self.machine)  # the plan), to its start
+                for bx, by in zip(back.x[-2::-1], back.y[-2::-1]):
+                    self.stage.move(x=float(bx), y=float(by), feed_mm_min=self.plan.feed_mm_min)
+            else:
+                for wx, wy, wz, wa in line.via:  # around the object (checked with the plan)
+                    self.stage.move(x=wx, y=wy, z=wz, a=wa, feed_mm_min=self.plan.feed_mm_min)
             self.stage.move(x=xs, y=p0.y, z=p0.z, a=p0.theta_deg,
                             feed_mm_min=self.plan.feed_mm_min)
             self.store_pending()  # the previous line, while the stage moves
@@ -257,6 +321,7 @@ class FlyRun:
             try:
                 rows = self.measure(line, LineMotion(xs, xe, self.v, self.a, self.spu),
                                     line_path(line, self.plan, self.machine))
+                self.at_end_of = line
                 return MeasuredLine(rows, line, attempts, timing)
             except LineRejected as e:
                 reasons.append(str(e))
@@ -268,8 +333,8 @@ class FlyRun:
         raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
                            f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
 
-    def measure(self, line: FlyLine, motion: LineMotion, path: LinePath | None = None
-                ) -> dict:
+    def measure(self, line: FlyLine, motion: LineMotion, path: LinePath | None = None,
+                z_mm: float | None = None) -> dict:
         """One pass along the line (the stage at motion.x0, at rest), sweeping to motion.x1
         at motion.v (mm/s) along `path`: the kept waveforms and where they were, or
         LineRejected. A clock_sync exchange just before the arm and one just after the
@@ -285,8 +350,10 @@ class FlyRun:
         sensor.stream_start()
         try:
             feed = round(v * 60)
-            for vx, vy in zip(path.x[1:], path.y[1:]):  # joined by Marlin's planner
-                stage.move(x=float(vx), y=float(vy), feed_mm_min=feed, wait=False)
+            for i, (vx, vy) in enumerate(zip(path.x[1:], path.y[1:])):  # joined by Marlin
+                stage.move(x=float(vx), y=float(vy), z=z_mm if i == 0 else None,
+                           feed_mm_min=feed, wait=False)
+            self.store_pending()  # the previous line, while this one runs
             stage.wait()
             end = time.monotonic() + SYNC_WAIT_S
             while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
@@ -309,8 +376,10 @@ class FlyRun:
         if np.any(np.diff(ts) <= 0) or not before[0][1] <= ts[0] <= ts[-1] <= after[0][1]:
             raise LineRejected("the sensor clock jumped during the line (a board reset?): the "
                                "waveform times do not lie between the clock syncs around it")
+        # the line's burst began after the arm (the exchange just before it), perhaps
+        # before the first shot: a joined line's first block starts as soon as it is queued
         new = [m for m in list(sensor.motion_syncs)
-               if m.burst_id not in bursts_before and m.first_edge > ts[0]]
+               if m.burst_id not in bursts_before and m.first_edge > before[0][1]]
         if len(new) != 1 or new[0].edges != motion.n:
             got = ", ".join(str(m.edges) for m in new) or "none"
             raise LineRejected(f"expected one X step burst of {motion.n} steps after the arm, got "
@@ -326,10 +395,10 @@ class FlyRun:
         # the model says which shots fell in the cruise (along the path: Marlin's feed rate
         # is the path's speed; the first and last X steps are at its ends); the counted
         # steps say where
-        # A polyline's blocks are joined by the planner as the commands arrive, so no
-        # one-block model says when it cruises: its waveforms' advance along the path does
+        # A joined line's blocks are planned as the commands arrive, so no one-block
+        # model says when it cruises: its waveforms' advance along the path does
         cruise = np.ones(len(waves), bool)
-        if not line.is_polyline:
+        if not line.joined:
             try:
                 _, cruise, _ = place_shots(motion, int(new[0].first_edge),
                                            int(new[0].last_edge), tick_hz, ts, n_avg, period)

@@ -187,6 +187,7 @@ FLY_AVERAGE = 12  # shots per fly waveform: 12 at 1 kHz, 2 mm apart = 167 mm/s (
 # an auto scan's: 24, so 83 mm/s: its lines are short, and at 167 mm/s the run-up and
 # run-out (v^2 / 2a = 40 mm each at 350 mm/s^2) would take most of every line's time
 AUTO_AVERAGE = 24
+AUTO_FEED_MM_MIN = 9000.0  # its moves between lines: 150 mm/s (Z and A at their own limits)
 
 
 def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: bool,
@@ -211,7 +212,8 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                     step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
                     **({"average": FLY_AVERAGE} if mode == "fly" else
-                       {"average": AUTO_AVERAGE} if mode == "auto" else {}))
+                       {"average": AUTO_AVERAGE, "feed_mm_min": AUTO_FEED_MM_MIN}
+                       if mode == "auto" else {}))
     plan.validate()
     return plan
 

@@ -34,12 +34,12 @@ def command(name, emu, out):
         return ["calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235",
                 "-y", "266", "-z", "20", "--start-distance", "7.24", "--lateral", "3",
                 "-o", str(out / "ranging.json")]
-    if name == "scan":
+    if name.startswith("scan"):  # "scan-auto": the same plan in auto mode
         return ["scan", "--sensor", emu.sensor, "--stage", emu.stage, "--calibration",
                 str(out.parent / "in" / "cal.toml"), "--ranging",
                 str(out.parent / "in" / "ranging.json"), "--plan",
                 str(out.parent / "in" / "plan.toml"), "--db", str(out / "db"),
-                "--scan-id", "cut"]
+                "--scan-id", "cut", *(["--mode", "auto"] if name == "scan-auto" else [])]
     return ["stage", "move", "--stage", emu.stage, "-y", "100", "--feed", "300"]
 
 
@@ -95,7 +95,8 @@ def settled(stage_port, wait_s=0.6):
 
 
 @pytest.mark.parametrize("sig", list(SIGNALS))
-@pytest.mark.parametrize("name", ["acquire", "calibrate-range", "stage-move", "scan"])
+@pytest.mark.parametrize("name", ["acquire", "calibrate-range", "stage-move", "scan",
+                                  "scan-auto"])
 def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig):
     rng = np.random.default_rng(zlib.crc32(f"{name} {sig}".encode()))
     delay_s = float(rng.uniform(1.5, 4.0))  # printed by pytest on failure
@@ -104,7 +105,7 @@ def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig)
         st.home()
         st.move(x=235, y=266, z=20, wait=True)
         st.wait()
-    if name == "scan":
+    if name.startswith("scan"):
         scan_inputs(emu, tmp_path / "in")
     out, cwd = tmp_path / "out", tmp_path / "cwd"
     out.mkdir()

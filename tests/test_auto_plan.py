@@ -115,10 +115,14 @@ def test_a_bottle_is_followed_down_its_neck_and_every_move_is_clear():
     assert max(q.y for q in neck) > X_R[1] - 12 - plan.standoff_mm - 1  # close to the neck
 
 
-def test_the_first_look_stays_outside_the_bounding_cylinder():
+def test_the_first_look_stays_outside_the_bounding_cylinder_and_covers_the_levels():
     plan = ScanPlan("b", radius_mm=31.0, height_mm=40.0, levels_mm=[20.0], step_mm=2.0,
                     average=12, mode="auto")
     look = first_look_plan(plan)
     assert look.mode == "fly" and len(look.angles_deg) == 8
-    assert min(look.levels_mm) > 0 and max(look.levels_mm) < 40.0
+    assert look.levels_mm == [14.0, 20.0, 26.0]  # one first-look step either side
     assert look.half_width_mm == plan.radius_mm
+    full = first_look_plan(ScanPlan("b", radius_mm=31.0, height_mm=40.0, mode="auto",
+                                    levels_mm=[4.5, 38.5], step_mm=2.0, average=12))
+    assert full.levels_mm[0] == 3.0 and full.levels_mm[-1] == 39.0 and all(
+        0 < z <= 40.0 for z in full.levels_mm)

@@ -31,9 +31,13 @@ EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (fl
 
 def first_look_plan(plan: ScanPlan) -> ScanPlan:
     """The first look: a fly pass from the bounding cylinder's front plane, levels every
-    first_look_step_mm over the height, FIRST_LOOK_ANGLES table angles, the plan's step."""
+    first_look_step_mm over the heights the follow lines scan (one step beyond them either
+    way, within the object's height), FIRST_LOOK_ANGLES table angles, the plan's step."""
     h, dz = plan.height_mm, plan.first_look_step_mm
-    levels = [round(z, 3) for z in np.arange(min(dz / 2, h / 2), h, dz)] or [h / 2]
+    lo = max(min(plan.levels_mm) - dz, min(dz / 2, h / 2))
+    hi = min(max(plan.levels_mm) + dz, h)
+    levels = [round(float(z), 3) for z in np.arange(lo, hi + 1e-9, dz)] or [
+        round(min(lo, h / 2), 3)]
     angles = [360.0 * k / FIRST_LOOK_ANGLES for k in range(FIRST_LOOK_ANGLES)]
     return replace(plan, mode="fly", levels_mm=levels, angles_deg=angles,
                    half_width_mm=plan.radius_mm)

@@ -13,6 +13,7 @@ from fly_scan_helpers import scan_cmd, setup
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
+from dmdsm.host.scan.auto import first_look_plan
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
@@ -98,7 +99,7 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, "levels_mm": [20.0]})
     (tmp_path / "plan.toml").write_text(plan.to_toml())
     path = tmp_path / "db" / "scans" / "cut.h5"
-    n_look = 4 * 8
+    n_look = len(first_look_plan(plan).levels_mm) * 8
     proc = subprocess.Popen(scan_cmd(emu, tmp_path, "cut", "--json"), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

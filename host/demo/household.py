@@ -124,7 +124,7 @@ def stage_household(d: Demo) -> Section:
 
 AUTO_OBJECTS = ("soda_can", "tissue_box")  # scanned in auto mode too (a band of levels)
 AUTO_QUICK = ("soda_can",)
-BAND_MM = 8.0  # the auto scans' band of levels about the object's half height (emulator time)
+BAND_MM = 8.0  # the auto scans' band of levels about the fixed plans' level (emulator time)
 
 
 def _band_coverage(sim: object, files: dict[str, str], z_range: tuple[float, float],
@@ -151,9 +151,9 @@ def _band_coverage(sim: object, files: dict[str, str], z_range: tuple[float, flo
 
 
 def auto_part(d: Demo, sec: Section, runs_by_name: dict[str, dict]) -> None:
-    """AUTO_OBJECTS scanned in auto mode over a band of levels (BAND_MM about half height,
-    2 mm apart): coverage of the true surface in that band next to the fixed plans' (which
-    scan one level at half height, so in the band they cover only that level's strip)."""
+    """AUTO_OBJECTS scanned in auto mode over a band of levels (BAND_MM about the fixed
+    plans' level, 2 mm apart): coverage of the true surface in that band next to the fixed
+    plans' (which scan that one level, so in the band they cover only its strip)."""
     from dmdsm.sim.physics.objects import HOUSEHOLD, bounding_size, household
 
     from ..scan.plan import plan_for_size
@@ -167,7 +167,7 @@ def auto_part(d: Demo, sec: Section, runs_by_name: dict[str, dict]) -> None:
         boxy = type(obj.shape).__name__ == "Box"
         mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
         plan = plan_for_size(name, (w, dep, h), not boxy, material, "auto", mod)
-        mid = round(h / 2)
+        mid = round(min(0.5 * h, 40.0))  # about the fixed plans' one level
         plan.levels_mm = [float(z) for z in np.arange(mid - BAND_MM / 2, mid + BAND_MM / 2
                                                        + 1e-9, 2.0) if z >= 4.5]
         d.mount(name)
@@ -202,7 +202,7 @@ def auto_part(d: Demo, sec: Section, runs_by_name: dict[str, dict]) -> None:
         f"Auto scans ({', '.join(AUTO_QUICK if d.quick else AUTO_OBJECTS)}; into "
         f"{d.out / 'db_auto'}): a first look from the bounding cylinder, the outline it "
         f"measured, then lines that follow it in X and Y at the table angles that see it "
-        f"(docs/scanning.md). Levels in a {BAND_MM:g} mm band about half the object's height, "
+        f"(docs/scanning.md). Levels in a {BAND_MM:g} mm band about the fixed plans' level, "
         f"2 mm apart, to keep the demo's emulator time short; coverage is measured in that "
         f"band, where the fixed plans scan one level. `python bench/scan_coverage.py` scans "
         f"the block and six mesh objects this way.")

@@ -126,3 +126,24 @@ def test_the_first_look_stays_outside_the_bounding_cylinder_and_covers_the_level
                                     levels_mm=[4.5, 38.5], step_mm=2.0, average=12))
     assert full.levels_mm[0] == 3.0 and full.levels_mm[-1] == 39.0 and all(
         0 < z <= 40.0 for z in full.levels_mm)
+
+
+def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
+    from dmdsm.host.scan.auto import hole_lines
+
+    o = box_outline()
+    holes = np.zeros_like(o.closed())
+    # the box's +x end (azimuth about 0 deg) at the 20 mm level was never covered
+    phi = (np.arange(72) + 0.5) * 5.0
+    holes[(phi < 20) | (phi > 340), 4] = True
+    lines = hole_lines(o, holes, [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N, 45.0,
+                       line_s=2.0, budget_s=10.0)
+    assert lines and all(li == 1 for _, li in lines)  # the 20 mm level only
+    a, _ = lines[0]
+    # the table turns the +x end to face the sensor (which looks along +y): the end's normal
+    # R(a) (1, 0, 0) = (cos a, sin a, 0) must point at it, -y: a = 270 deg, head on
+    assert a == 270.0, lines
+    assert hole_lines(o, holes, [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N, 45.0,
+                      line_s=2.0, budget_s=1.0) == []  # no time for one line
+    assert hole_lines(o, np.zeros_like(holes), [0.0], [20.0], 8.0, V, N, 45.0, 2.0,
+                      100.0) == []  # nothing to do

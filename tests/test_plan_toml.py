@@ -27,7 +27,8 @@ def plans(draw: st.DrawFn) -> ScanPlan:
         turntable_radius_mm=draw(MM), depth_margin_mm=draw(st.floats(0.0, 10.0)),
         mode=draw(st.sampled_from(MODES)), laser_hz=draw(st.floats(1.0, 5000.0)),
         first_look_step_mm=draw(st.floats(0.5, 20.0)),
-        max_incidence_deg=draw(st.floats(1.0, 89.0)), max_angles=draw(st.integers(1, 72)))
+        max_incidence_deg=draw(st.floats(1.0, 89.0)), max_angles=draw(st.integers(1, 72)),
+        rescan_budget_s=draw(st.floats(0.0, 3600.0)))
     assume(plan.step_mm <= 2 * plan.half_width_mm)
     assume(plan.mode == "step" or plan.step_mm * plan.laser_hz / plan.average <= 200.0)
     return plan
@@ -43,7 +44,8 @@ def test_to_toml_round_trips_through_load_plan(plan, tmp_path_factory):
     # keys (the scan ids stay as they were), so they read back as the defaults, which
     # those modes do not use
     d = ScanPlan("x")
-    auto = {k: getattr(d, k) for k in ("first_look_step_mm", "max_incidence_deg", "max_angles")}
+    auto = {k: getattr(d, k) for k in ("first_look_step_mm", "max_incidence_deg", "max_angles",
+                                       "rescan_budget_s")}
     expect = plan if plan.mode == "auto" else ScanPlan(**{**vars(plan), **auto})
     if plan.mode == "step":
         expect = ScanPlan(**{**vars(expect), "laser_hz": 1000.0})

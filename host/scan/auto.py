@@ -206,3 +206,38 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
                                  float(th), li, ci, ai, first_line + k))
             k += 1
     return pts
+
+
+def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],
+               levels_mm: list[float], standoff_mm: float, v: np.ndarray, n: np.ndarray,
+               max_incidence_deg: float, line_s: float, budget_s: float
+               ) -> list[tuple[float, int]]:
+    """(table angle deg, level index) of the lines scanned again for the holes (closed
+    outline cells, (nphi, nz) bool, with no point near them after the follow lines):
+    greedily the candidate angle (every CANDIDATE_STEP_DEG, not yet scanned) and plan level
+    whose line sees the most holes of its height within max_incidence_deg, while the lines'
+    estimated time (line_s each) stays within budget_s."""
+    lim = math.cos(math.radians(max_incidence_deg))
+    vz = (np.asarray(v, float) / np.linalg.norm(v))[2]
+    nz = holes.shape[1]
+    rows = [int(np.clip(np.searchsorted(outline.z_edges_mm, h + standoff_mm * vz, "right")
+                        - 1, 0, nz - 1)) for h in levels_mm]
+    left = holes.copy()
+    cands = [a for a in np.arange(0.0, 360.0, CANDIDATE_STEP_DEG)
+             if not any(abs((a - b + 180) % 360 - 180) < 1e-6 for b in angles_done)]
+    cos = {a: incidence_cos(outline, a, v, n) for a in cands}
+    sees = {a: c >= lim for a, c in cos.items()}
+    chosen: list[tuple[float, int]] = []
+    while (len(chosen) + 1) * line_s <= budget_s:
+        best, gain = None, (0, 0.0)
+        for a in cands:
+            for li, j in enumerate(rows):
+                hit = sees[a][:, j] & left[:, j]
+                g = (int(hit.sum()), float(cos[a][hit, j].sum()))  # more holes, then nearer
+                if g[0] and g > gain and (float(a), li) not in chosen:  # head on
+                    best, gain = (float(a), li), g
+        if best is None:
+            break
+        chosen.append(best)
+        left[:, rows[best[1]]] &= ~sees[best[0]][:, rows[best[1]]]
+    return chosen

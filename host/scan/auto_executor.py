@@ -8,7 +8,7 @@ same follow lines again and goes on after the last one stored.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -17,10 +17,12 @@ from dmdsm.marlin_patch import MachineLimits
 from ..links.interfaces import Stage, StreamSensor
 from ..links.safety import KeepOut, UnsafeMove
 from ..ranging.point import PointRanger
-from .auto import choose_angles, first_look_plan, follow_points
+from .auto import choose_angles, first_look_plan, follow_points, hole_lines
 from .common import Progress, ScanStats
-from .coverage import coverage
+from .coverage import coverage, covered_mask
+from .fly import ramp_mm
 from .fly_executor import (
+    TRANSITION_MM,
     FlyLine,
     fly_lines,
     fly_speed,
@@ -29,7 +31,7 @@ from .fly_executor import (
     run_fly_scan,
 )
 from .outline import Outline, OutlineKeepOut, check_moves, outline_from_points
-from .plan import Point, ScanPlan
+from .plan import AUTO_SPACING_MM, Point, ScanPlan
 from .reconstruct import object_points, stage_points
 from .scanfile import ScanWriter
 
@@ -47,6 +49,8 @@ class AutoPlan:
     seen_share: float
     points: list[Point]
     via: dict[int, list[Waypoint]] = field(default_factory=dict)
+    hole_share: float = 0.0  # closed outline cells with no point after the follow lines
+    hole_points: list[Point] = field(default_factory=list)  # the lines scanned again
 
 
 def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
@@ -104,13 +108,24 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
                         machine.junction_deviation_mm, n_look)
     for i, p in enumerate(pts):
         p.index = len(look) + i
-    zones = [OutlineKeepOut(outline, X_R, n), turntable]
-    front_y = look[0].y  # the first look's front plane: outside the bounding cylinder
     all_lines = fly_lines(look + pts)
     here = _line_targets(all_lines[n_look - 1], first_look_plan(plan), machine)[0][-1]
-    prev: FlyLine | None = None  # the follow lines' run (FlyRun) starts with a move
+    via = _check_lines(all_lines[n_look:], here, plan, machine,
+                       [OutlineKeepOut(outline, X_R, n), turntable], look[0].y)
+    return AutoPlan(outline, angles, share, pts, via)
+
+
+def _check_lines(lines: list[FlyLine], here: Waypoint, plan: ScanPlan,
+                 machine: MachineLimits, zones: list, front_y: float
+                 ) -> dict[int, list[Waypoint]]:
+    """Check every move of the lines, from `here` (where the stage stands before the first
+    of them, which FlyRun starts with a move of its own); the ways around the object by line
+    index (an empty list: a move of its own, not joined to the line before). Raises
+    UnsafeMove with the one-line reason. front_y: the first look's front plane, outside the
+    bounding cylinder."""
+    prev: FlyLine | None = None
     via: dict[int, list[Waypoint]] = {}
-    for line in all_lines[n_look:]:
+    for line in lines:
         targets, labels = _line_targets(line, plan, machine)
         # run on from the previous line's end where the geometry allows (FlyRun does the
         # same), else a move of its own; both checked, and the line itself from its run-up
@@ -137,7 +152,60 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
             via[line.index] = way
         via.setdefault(line.index, [])  # a move of its own: not joined
         here, prev = targets[-1], line
-    return AutoPlan(outline, angles, share, pts, via)
+    return via
+
+
+def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Point],
+               plan: ScanPlan, calibration: dict, machine: MachineLimits,
+               turntable: KeepOut) -> tuple[list[Point], dict[int, list[Waypoint]], float]:
+    """The lines scanned again for the holes the first look and the follow lines (the
+    file's lines before n_before) left in the outline: at new table angles that see them
+    (auto.hole_lines, within plan.rescan_budget_s), checked like the follow lines. Returns
+    their points, their ways around the object and the share of closed cells that were
+    holes."""
+    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    outline = auto.outline
+    closed = outline.closed()
+    P = _stored_points(writer, n_before, calibration)
+    i, j = np.nonzero(np.isfinite(outline.filled_r_mm()))  # surface_points' order
+    holes = np.zeros_like(closed)
+    holes[i, j] = ~covered_mask(outline.surface_points(), P, AUTO_SPACING_MM)
+    share = float(holes.sum() / max(closed.sum(), 1))
+    speed, accel = fly_speed(plan, machine)
+    line_s = (2 * plan.radius_mm + 2 * (ramp_mm(speed, accel, plan.step_mm) + TRANSITION_MM)
+              ) / speed + 1.0  # a line and its way there, about
+    pairs = hole_lines(outline, holes, auto.angles_deg, plan.levels_mm, plan.standoff_mm, v,
+                       n, plan.max_incidence_deg, line_s, plan.rescan_budget_s)
+    pts: list[Point] = []
+    for k, (a, li) in enumerate(pairs):
+        one = replace(plan, levels_mm=[plan.levels_mm[li]])
+        for p in follow_points(one, outline, [a], v, n, X_R, speed, accel,
+                               machine.junction_deviation_mm, n_before + len(fly_lines(pts))):
+            p.level, p.angle_index = li, len(auto.angles_deg) + k
+            pts.append(p)
+    for q, p in enumerate(pts):
+        p.index = len(look) + len(auto.points) + q
+    if not pts:
+        return [], {}, share
+    before = fly_lines(look + auto.points)[-1]
+    here = _line_targets(before, plan, machine)[0][-1]
+    via = _check_lines(fly_lines(look + auto.points + pts)[n_before:], here, plan, machine,
+                       [OutlineKeepOut(outline, X_R, n), turntable], look[0].y)
+    return pts, via, share
+
+
+def _stored_points(writer: ScanWriter, n_lines: int, calibration: dict) -> np.ndarray:
+    """Object-frame points (mm), both modalities, of the file's lines before n_lines."""
+    d, m = writer.data, writer.n_done
+    sel = d["point_index"][:m] < n_lines
+    v, nn, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    S, th = d["stage_position_mm"][:m][sel], d["theta_deg"][:m][sel]
+    out = [np.empty((0, 3))]
+    for mod in ("oa", "us"):
+        dist = d[f"distance_{mod}_mm"][:m][sel]
+        ok = np.isfinite(dist)
+        out.append(object_points(stage_points(S[ok], dist[ok], v), th[ok], nn, X_R))
+    return np.vstack(out)
 
 
 def run_auto_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, look: list[Point],
@@ -149,8 +217,20 @@ def run_auto_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, look: list
     stats = run_fly_scan(stage, sensor, first_look_plan(plan), look, writer, ranger, machine,
                          progress)
     auto = plan_follow(writer, look, plan, calibration, machine, turntable)
-    more = run_fly_scan(stage, sensor, plan, look + auto.points, writer, ranger, machine,
-                        progress, via=auto.via)
+    _add(stats, run_fly_scan(stage, sensor, plan, look + auto.points, writer, ranger,
+                             machine, progress, via=auto.via))
+    n_before = len(fly_lines(look + auto.points))
+    holes, via, auto.hole_share = plan_holes(writer, n_before, auto, look, plan, calibration,
+                                             machine, turntable)
+    auto.hole_points = holes
+    if holes:
+        _add(stats, run_fly_scan(stage, sensor, plan, look + auto.points + holes, writer,
+                                 ranger, machine, progress, via={**auto.via, **via}))
+    return stats, auto
+
+
+def _add(stats: ScanStats, more: ScanStats) -> None:
+    """Add a later part's statistics to the run's."""
     stats.stored += more.stored
     stats.lost += more.lost
     stats.store_s += more.store_s
@@ -158,7 +238,6 @@ def run_auto_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, look: list
     for k in stats.phase_s:
         stats.phase_s[k] += more.phase_s[k]
     stats.clock = more.clock or stats.clock
-    return stats, auto
 
 
 def outline_coverage(writer: ScanWriter, auto: AutoPlan, calibration: dict,

@@ -65,6 +65,7 @@ class ScanPlan:
     first_look_step_mm: float = 6.0
     max_incidence_deg: float = 45.0
     max_angles: int = 16
+    rescan_budget_s: float = 60.0    # lines scanned again for the holes left, in s at most
 
     def validate(self) -> None:
         """Raise PlanError naming the first bad value."""
@@ -99,8 +100,10 @@ class ScanPlan:
         if not 0 < self.max_incidence_deg < 90:
             raise PlanError(f"max_incidence_deg must be between 0 and 90 (got "
                             f"{self.max_incidence_deg:g})")
-        if not 1 <= self.max_angles <= 72 or not self.first_look_step_mm > 0:
-            raise PlanError("max_angles must be 1..72 and first_look_step_mm positive")
+        if not 1 <= self.max_angles <= 72 or not self.first_look_step_mm > 0 or \
+                not 0 <= self.rescan_budget_s <= 36_000:
+            raise PlanError("max_angles must be 1..72, first_look_step_mm positive and "
+                            "rescan_budget_s 0..36000 s")
         if self.mode in ("fly", "auto"):
             from dmdsm.marlin_patch import load_machine
 
@@ -165,7 +168,8 @@ class ScanPlan:
         out += ["", "[object]"] + [f"{k} = {val(d[k])}" for k in obj]
         step_only = ("mode", "laser_hz") if self.mode == "step" else ()  # same ids as before
         if self.mode != "auto":
-            step_only += ("first_look_step_mm", "max_incidence_deg", "max_angles")
+            step_only += ("first_look_step_mm", "max_incidence_deg", "max_angles",
+                          "rescan_budget_s")
         out += ["", "[scan]"] + [f"{k} = {val(v)}" for k, v in d.items()
                                  if k not in sample + obj + step_only]
         return "\n".join(out) + "\n"

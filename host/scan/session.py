@@ -200,10 +200,12 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         if plan.mode == "auto":
             run.stats, auto = run_auto_scan(stage, sensor, plan, points, writer, ranger,
                                             machine, calibration, keep[1], progress)
-            run.planned = len(points) + len(auto.points)
+            run.planned = len(points) + len(auto.points) + len(auto.hole_points)
             run.auto = {"angles_deg": auto.angles_deg, "lines": len(fly_lines(auto.points)),
                         "first_look_lines": len(fly_lines(points)),
                         "outline_seen_share": round(auto.seen_share, 4),
+                        "holes_after_follow": round(auto.hole_share, 4),
+                        "hole_lines": len(fly_lines(auto.hole_points)),
                         "coverage": outline_coverage(writer, auto, calibration,
                                                      AUTO_SPACING_MM),
                         "coverage_spacing_mm": AUTO_SPACING_MM}

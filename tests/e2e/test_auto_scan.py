@@ -57,6 +57,7 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     assert a["first_look_lines"] == 4 * 8 and {0.0, 90.0} <= set(a["angles_deg"])
     assert a["outline_seen_share"] == 1.0  # a box's four faces, each seen head on
     assert a["lines"] == 2 * len(a["angles_deg"]) and min(a["coverage"].values()) > 0.9
+    assert 0 <= a["holes_after_follow"] < 0.2 and a["hole_lines"] >= 0
     data = read_scan(run.path, waveforms=False)
     p = data.points
     follow = p["point_index"] >= a["first_look_lines"]
@@ -128,6 +129,7 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     whole = read_scan(path, waveforms=False)
     assert whole.entry["status"] == "complete"
     idx = sorted(set(whole.points["point_index"].tolist()))
-    assert idx == list(range(n_look + summary["auto"]["lines"]))
+    a = summary["auto"]
+    assert idx == list(range(n_look + a["lines"] + a["hole_lines"]))
     np.testing.assert_array_equal(whole.points["stage_position_mm"][:cut.n_points],
                                   cut.points["stage_position_mm"])

@@ -147,3 +147,31 @@ def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
                       line_s=2.0, budget_s=1.0) == []  # no time for one line
     assert hole_lines(o, np.zeros_like(holes), [0.0], [20.0], 8.0, V, N, 45.0, 2.0,
                       100.0) == []  # nothing to do
+
+
+def test_a_line_no_checked_move_reaches_is_left_out_and_said_not_the_scan():
+    """A line (or the way to it) the checks refuse is left out with its one-line reason;
+    the lines after it are numbered on without a gap (resuming counts on that)."""
+    from dmdsm.host.links.safety import KeepOut
+    from dmdsm.host.scan.auto import first_look_points
+    from dmdsm.host.scan.auto_executor import _safe_lines
+
+    o = bottle_outline()
+    plan = ScanPlan("bottle", radius_mm=36.0, height_mm=100.0, levels_mm=[30.0, 80.0],
+                    angles_deg=[0.0, 90.0], step_mm=2.0, average=24, mode="auto")
+    look = first_look_points(plan, V, X_R)
+    n_look = len(fly_lines(look))
+    pts = follow_points(plan, o, [0.0, 90.0], V, N, X_R, 83.3, 350.0,
+                        M.junction_deviation_mm, n_look)
+    for i, p in enumerate(pts):
+        p.index = len(look) + i
+    shelf = KeepOut(X_R + 75.0 * N, N, 80.0, 10.0)  # something in the way at 80 mm
+    here = (X_R[0] - 80.0, look[0].y, 20.0, 0.0)
+    kept, via, skipped = _safe_lines(look, pts, here, plan, M,
+                                     [OutlineKeepOut(o, X_R, N), shelf])
+    assert len(skipped) == 2 and all("\n" not in s and "refused" in s for s in skipped)
+    assert {p.level for p in kept} == {0}  # the 80 mm lines are gone, the 30 mm ones kept
+    lines = fly_lines(look + kept)[n_look:]
+    assert [ln.points[0].line for ln in lines] == list(range(n_look, n_look + len(lines)))
+    assert [p.index for p in kept] == list(range(len(look), len(look) + len(kept)))
+    assert lines[0].index in via  # the first follow line: a move of its own from `here`

@@ -129,5 +129,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
             print(f"auto: {a['first_look_lines']} first-look lines, {a['lines']} follow lines "
                   f"at {len(a['angles_deg'])} table angles; coverage of the measured outline "
                   f"at {a['coverage_spacing_mm']:g} mm: "
-                  + ", ".join(f"{m.upper()} {100 * c:.1f} %" for m, c in a["coverage"].items()))
+                  + ", ".join(f"{m.upper()} {100 * c:.1f} %" for m, c in a["coverage"].items())
+                  + f"; the first look measured {100 * a['outline_closed_share']:.0f} % of the "
+                  f"outline (the rest kept the bounding cylinder and is not counted)")
+            for why in a["lines_left_out"]:  # said, not hidden
+                print(f"auto: a line was left out: {why}")
     return 0

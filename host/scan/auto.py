@@ -19,7 +19,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..calibration.geometry import rodrigues
 from .fly import junction_speed_mm_s
-from .outline import Outline
+from .outline import Outline, OutlineKeepOut
 from .plan import Point, ScanPlan, expand
 from .reconstruct import table_frame
 
@@ -27,6 +27,8 @@ FIRST_LOOK_ANGLES = 8     # table angles of the first look (every 45 deg)
 MAX_SLOPE = 1.0           # |dY/dX| of a follow line: X moves at >= 71 % of the path speed
 CANDIDATE_STEP_DEG = 15.0  # table angles the angle choice picks from
 EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (flat), each side
+CLEARANCE_MM = 1.0        # a follow line keeps this far outside the keep-out (the checks'
+# sampling and the chords between its vertices)
 
 
 def first_look_plan(plan: ScanPlan) -> ScanPlan:
@@ -99,7 +101,8 @@ def beam_hits_y(outline: Outline, theta_deg: float, level_mm: float, xs: np.ndar
 
 
 def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: float,
-             junction_deviation_mm: float, every: int = 3) -> np.ndarray:
+             junction_deviation_mm: float, every: int = 3,
+             y_cap: np.ndarray | None = None) -> np.ndarray:
     """Sensor Y (mm) per column X (xs, evenly spaced) never above y_want (farther from the
     object; NaN: no surface there), with slope <= MAX_SLOPE, smooth enough that Marlin's
     planner takes every junction of the vertices (every `every`-th column) at v_mm_s; the
@@ -109,6 +112,8 @@ def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: flo
         raise ValueError("the beam meets nothing along the line")
     # beside the surface the line runs on flat at its edges' Y, as its run-up and run-out do
     filled = np.interp(xs, xs[ok], y_want[ok])
+    if y_cap is not None:  # and never into the keep-out, beside the surface too
+        filled = np.minimum(filled, y_cap)
     env = np.min(filled[None, :] + MAX_SLOPE * np.abs(xs[:, None] - xs[None, :]), axis=1)
     for sigma in (1.0, 2.0, 4.0, 8.0):
         y = gaussian_filter1d(env, sigma, mode="nearest")
@@ -180,6 +185,7 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
     and forth), lines numbered from first_line: per line the columns where the beam meets
     the outline and EDGE_COLUMNS either side, Y from follow_y."""
     v = np.asarray(v, float) / np.linalg.norm(v)
+    keep = OutlineKeepOut(outline, np.asarray(X_R, float), np.asarray(n, float))
     half = plan.radius_mm + EDGE_COLUMNS * plan.step_mm
     xs_all = X_R[0] + np.arange(-half, half + 1e-9, plan.step_mm)
     pts: list[Point] = []
@@ -199,7 +205,9 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
             xs, want = xs_all[sel], yh[sel] - plan.standoff_mm * v[1]
             if len(xs) < 2:
                 continue
-            y = follow_y(xs, want, v_mm_s, accel_mm_s2, junction_deviation_mm)
+            front = X_R[1] - (plan.radius_mm + plan.standoff_mm) * v[1]  # outside it all
+            cap = keep_out_cap(keep, xs, X_R[2] + h, th, front, float(np.nanmax(want)))
+            y = follow_y(xs, want, v_mm_s, accel_mm_s2, junction_deviation_mm, y_cap=cap)
             order = range(len(xs)) if k % 2 == 0 else range(len(xs) - 1, -1, -1)
             for ci in order:
                 pts.append(Point(len(pts), float(xs[ci]), float(y[ci]), float(X_R[2] + h),
@@ -241,3 +249,16 @@ def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],
         chosen.append(best)
         left[:, rows[best[1]]] &= ~sees[best[0]][:, rows[best[1]]]
     return chosen
+
+
+def keep_out_cap(keep: OutlineKeepOut, xs: np.ndarray, z_mm: float, theta_deg: float,
+                 y_front: float, y_far: float) -> np.ndarray:
+    """Per column X, the largest sensor Y (mm) CLEARANCE_MM short of the outline's keep-out,
+    searched from the front plane y_front (outside it) towards y_far in 0.25 mm steps; no
+    cap (inf) where the keep-out is not met before y_far."""
+    ys = np.arange(y_front, y_far + 0.25, 0.25)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    S = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z_mm)])
+    inside = keep.inside(S, theta_deg).reshape(X.shape)
+    first = np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+    return np.where(first >= 0, ys[np.maximum(first, 0)] - CLEARANCE_MM, np.inf)

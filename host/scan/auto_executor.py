@@ -51,6 +51,7 @@ class AutoPlan:
     via: dict[int, list[Waypoint]] = field(default_factory=dict)
     hole_share: float = 0.0  # closed outline cells with no point after the follow lines
     hole_points: list[Point] = field(default_factory=list)  # the lines scanned again
+    skipped: list[str] = field(default_factory=list)  # lines left out: no safe move to them
 
 
 def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
@@ -108,11 +109,40 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
                         machine.junction_deviation_mm, n_look)
     for i, p in enumerate(pts):
         p.index = len(look) + i
-    all_lines = fly_lines(look + pts)
-    here = _line_targets(all_lines[n_look - 1], first_look_plan(plan), machine)[0][-1]
-    via = _check_lines(all_lines[n_look:], here, plan, machine,
-                       [OutlineKeepOut(outline, X_R, n), turntable], look[0].y)
-    return AutoPlan(outline, angles, share, pts, via)
+    here = _line_targets(fly_lines(look)[-1], first_look_plan(plan), machine)[0][-1]
+    pts, via, skipped = _safe_lines(look, pts, here, plan, machine,
+                                    [OutlineKeepOut(outline, X_R, n), turntable])
+    return AutoPlan(outline, angles, share, pts, via, skipped=skipped)
+
+
+class _LineUnsafe(Exception):
+    """A line (or the way to it) that no checked move reaches: it is left out."""
+
+    def __init__(self, index: int, why: str) -> None:
+        super().__init__(why)
+        self.index = index
+
+
+def _safe_lines(before: list[Point], pts: list[Point], here: Waypoint, plan: ScanPlan,
+                machine: MachineLimits, zones: list
+                ) -> tuple[list[Point], dict[int, list[Waypoint]], list[str]]:
+    """The lines of pts (after the points `before`) whose every move passes the checks, the
+    rest left out with the reason (one line each); numbered on from `before`'s lines."""
+    skipped: list[str] = []
+    n_first = len(fly_lines(before))
+    while True:
+        lines = fly_lines(before + pts)[n_first:]
+        try:
+            return pts, _check_lines(lines, here, plan, machine, zones, before[0].y), skipped
+        except _LineUnsafe as e:
+            skipped.append(str(e))
+            gone = lines[e.index - n_first].points[0].line
+            pts = [p for p in pts if p.line != gone]
+            for k, line in enumerate(fly_lines(before + pts)[n_first:]):
+                for p in line.points:
+                    p.line = n_first + k
+            for i, p in enumerate(pts):
+                p.index = len(before) + i
 
 
 def _check_lines(lines: list[FlyLine], here: Waypoint, plan: ScanPlan,
@@ -126,33 +156,44 @@ def _check_lines(lines: list[FlyLine], here: Waypoint, plan: ScanPlan,
     prev: FlyLine | None = None
     via: dict[int, list[Waypoint]] = {}
     for line in lines:
-        targets, labels = _line_targets(line, plan, machine)
-        # run on from the previous line's end where the geometry allows (FlyRun does the
-        # same), else a move of its own; both checked, and the line itself from its run-up
-        # start (a measurement taken again goes back along it)
-        check_moves(targets[1:], labels[1:], targets[0], machine, zones)
-        if joins_previous(prev, line, plan, machine):
-            joined, jl = _line_targets(line, plan, machine, start=here)
-            try:
-                check_moves(joined[1:], jl[1:], here, machine, zones)
-                here, prev = targets[-1], line
-                continue
-            except UnsafeMove:
-                pass
-        start = targets[0]
         try:
-            check_moves([start], [f"the way to line {line.index}"], here, machine, zones)
-        except UnsafeMove:  # back out to the front plane, across, and in again
-            way = [(here[0], front_y, here[2], here[3]), (start[0], front_y, start[2],
-                                                            start[3])]
-            check_moves(way + [start], [f"the way back from line {line.index - 1}",
-                                        f"the way across to line {line.index}",
-                                        f"the way in to line {line.index}"], here, machine,
-                        zones)
-            via[line.index] = way
-        via.setdefault(line.index, [])  # a move of its own: not joined
-        here, prev = targets[-1], line
+            here = _check_line(line, prev, here, plan, machine, zones, front_y, via)
+        except UnsafeMove as e:
+            raise _LineUnsafe(line.index, str(e)) from None
+        prev = line
     return via
+
+
+def _check_line(line: FlyLine, prev: FlyLine | None, here: Waypoint, plan: ScanPlan,
+                machine: MachineLimits, zones: list, front_y: float,
+                via: dict[int, list[Waypoint]]) -> Waypoint:
+    """Check one line and the way to it from `here` (joined to prev where it may be, else a
+    move of its own, around the object if need be, entered in via); its run-out end."""
+    targets, labels = _line_targets(line, plan, machine)
+    # run on from the previous line's end where the geometry allows (FlyRun does the
+    # same), else a move of its own; both checked, and the line itself from its run-up
+    # start (a measurement taken again goes back along it)
+    check_moves(targets[1:], labels[1:], targets[0], machine, zones)
+    if joins_previous(prev, line, plan, machine):
+        joined, jl = _line_targets(line, plan, machine, start=here)
+        try:
+            check_moves(joined[1:], jl[1:], here, machine, zones)
+            return targets[-1]
+        except UnsafeMove:
+            pass
+    start = targets[0]
+    try:
+        check_moves([start], [f"the way to line {line.index}"], here, machine, zones)
+    except UnsafeMove:  # back out to the front plane, across, and in again
+        way = [(here[0], front_y, here[2], here[3]), (start[0], front_y, start[2],
+                                                        start[3])]
+        check_moves(way + [start], [f"the way back from line {line.index - 1}",
+                                    f"the way across to line {line.index}",
+                                    f"the way in to line {line.index}"], here, machine,
+                    zones)
+        via[line.index] = way
+    via.setdefault(line.index, [])  # a move of its own: not joined
+    return targets[-1]
 
 
 def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Point],
@@ -187,10 +228,10 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
         p.index = len(look) + len(auto.points) + q
     if not pts:
         return [], {}, share
-    before = fly_lines(look + auto.points)[-1]
-    here = _line_targets(before, plan, machine)[0][-1]
-    via = _check_lines(fly_lines(look + auto.points + pts)[n_before:], here, plan, machine,
-                       [OutlineKeepOut(outline, X_R, n), turntable], look[0].y)
+    here = _line_targets(fly_lines(look + auto.points)[-1], plan, machine)[0][-1]
+    pts, via, skipped = _safe_lines(look + auto.points, pts, here, plan, machine,
+                                    [OutlineKeepOut(outline, X_R, n), turntable])
+    auto.skipped += skipped
     return pts, via, share
 
 

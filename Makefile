@@ -166,6 +166,8 @@ bench: deps firmware
 	$(PY) bench/calibration.py
 	$(PY) bench/emulator.py
 	$(PY) bench/scan.py
+	$(PY) bench/sensor_limits.py
+	$(PY) bench/scan_coverage.py --quick
 	$(PY) bench/classify.py
 
 ## ---------------------------------------------------------------- the real Marlin

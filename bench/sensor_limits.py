@@ -103,6 +103,28 @@ def rangers_at(setup: object, d_mm: float, cache: dict, gate: str) -> dict:
     return cache[standoff]
 
 
+def cell_waveform(material: str, d_mm: float, incidence_deg: float, average: int = 24,
+                  seed: int = 0) -> tuple[np.ndarray, int, float, object]:
+    """One waveform (samples, trigger phase), the true distance (mm) and the auto plan's
+    "both" ranger, for a face of `material` d_mm away at the incidence (tests use it)."""
+    rig = block_rig(seed)
+    setup = ranging_calibration(rig)
+    scene = Scene(objects=[])
+    W, center = face_pose(scene, incidence_deg)
+    R = table_frame(scene.n).T @ W
+    scene.objects = [SceneObject(f"{material}_face", material, Box(center=center, R=R,
+                                                                  half=HALF))]
+    rig.scene = scene
+    rig.configure(n_samples=1024, n_average=average)
+    S = scene.X_R + table_frame(scene.n) @ FACE - d_mm * unit(scene.v)
+    rig.move(*S)
+    truth = scene.cast(*rig.pose()).d
+    got = rig.acquire(1)
+    ranger = point_ranger(ScanPlan("t", standoff_mm=STANDOFF, modality="both"), setup, 1024,
+                          TICK_HZ)
+    return got.samples[0], int(got.trigger_phase[0]), float(truth), ranger
+
+
 def cell(rig: DirectRig, setup: object, material: str, d_mm: float, incidence_deg: float,
          n_waves: int, average: int, band: int, cache: dict, gate: str) -> dict:
     """n_waves waveforms at beam distance d_mm and the incidence, each on its own spot of the

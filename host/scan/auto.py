@@ -208,10 +208,11 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
             front = X_R[1] - (plan.radius_mm + plan.standoff_mm) * v[1]  # outside it all
             cap = keep_out_cap(keep, xs, X_R[2] + h, th, front, float(np.nanmax(want)))
             y = follow_y(xs, want, v_mm_s, accel_mm_s2, junction_deviation_mm, y_cap=cap)
+            expect = (yh[sel] - y) / v[1]  # where the outline says the beam meets it
             order = range(len(xs)) if k % 2 == 0 else range(len(xs) - 1, -1, -1)
             for ci in order:
                 pts.append(Point(len(pts), float(xs[ci]), float(y[ci]), float(X_R[2] + h),
-                                 float(th), li, ci, ai, first_line + k))
+                                 float(th), li, ci, ai, first_line + k, float(expect[ci])))
             k += 1
     return pts
 

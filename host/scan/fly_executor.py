@@ -439,6 +439,19 @@ def straddles(d_mm: np.ndarray, x_mm: np.ndarray, jump_mm: float) -> np.ndarray:
     return bad
 
 
+def _expected(line: FlyLine, x_mm: np.ndarray) -> np.ndarray:
+    """The beam distance (mm) the outline predicts at each X of an auto follow line (NaN
+    elsewhere, and beside the surface)."""
+    pts = sorted(line.points, key=lambda p: p.x)
+    xs = np.array([p.x for p in pts])
+    ex = np.array([p.expect_mm for p in pts])
+    if not np.isfinite(ex).any():
+        return np.full(len(x_mm), np.nan)
+    near = np.abs(np.asarray(x_mm)[:, None] - xs[None, :]).argmin(axis=1)
+    return np.where(np.isfinite(ex[near]), np.interp(x_mm, xs[np.isfinite(ex)],
+                                                      ex[np.isfinite(ex)]), np.nan)
+
+
 def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
            unix_minus_monotonic: float, jump_mm: float) -> dict:
     """Distances and the file's per-row values for a kept line."""
@@ -446,8 +459,12 @@ def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
     n = len(rows["x"])
     out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
                                             "snr_us_db")}
+    expect = _expected(line, rows["x"])
     previous = None
     for i in range(n):
+        if (previous is None or not np.isfinite(previous[0])) and np.isfinite(expect[i]):
+            # no neighbour yet: a lone pulse may continue the surface the outline predicts
+            previous = (float(expect[i]), {"oa": -np.inf, "us": -np.inf})
         r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous)
         previous = surface(r)
         nan = (np.nan, 0.0)

@@ -304,6 +304,7 @@ class Point:
     column: int
     angle_index: int
     line: int = -1  # an auto scan's line number (-1: lines by angle and level)
+    expect_mm: float = math.nan  # an auto follow line's: the beam distance the outline predicts
 
 
 def expand(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:

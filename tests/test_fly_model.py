@@ -112,9 +112,11 @@ def test_every_x_step_of_joined_moves_reaches_the_sync_wire():
     """The X STEP wire over a line of 26 joined moves bending in Y (an auto scan's
     follow line), the third block arriving on the very instant of a delivery: the sensor
     board is given each of the 16000 edges once."""
+    from dmdsm.sim.boards.sensor.core_board import SyncWire
     from dmdsm.sim.servers.runner import SimConfig, Simulation
 
     sim = Simulation(SimConfig(scene="empty"))
+    wire = SyncWire(sim.x_step_edges)  # as the sensor board takes them
     pl = sim.stage.planner
     pl.steps = pl.to_steps([100, 100, 20, 0])
     got: list[np.ndarray] = []
@@ -124,7 +126,7 @@ def test_every_x_step_of_joined_moves_reaches_the_sync_wire():
     here = pl.steps.copy()
     for i, (x, y) in enumerate(pts):
         if i == 2:  # the third block arrives on a delivery's instant: it starts then
-            got.append(sim.x_step_edges(0.0, t))
+            got.append(wire.take(0.0, t))
         nxt = pl.to_steps([x, y, 20, 0])
         pl.add(t, here, nxt, 166.7)
         here = nxt
@@ -132,7 +134,7 @@ def test_every_x_step_of_joined_moves_reaches_the_sync_wire():
     while t < 5.0:
         t2 = t + 0.0137
         pl.update(t2)
-        got.append(sim.x_step_edges(t, t2))
+        got.append(wire.take(t, t2))
         t = t2
     e = np.concatenate(got)
     assert len(e) == 16000 and np.all(np.diff(e) > 0)

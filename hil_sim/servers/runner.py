@@ -7,7 +7,6 @@ to the wall clock (times `speed`), so `dmdsm` or plain pySerial open the ports b
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
@@ -27,9 +26,6 @@ if TYPE_CHECKING:
     from ..physics.mesh import ObjectTruth
 
 STEP_S = 0.005  # simulated-time resolution of the main loop while shots are sampled
-
-
-SYNC_LOOKBACK_S = 1e-3  # s: how far back each delivery of X STEP edges looks again
 
 
 @dataclass
@@ -89,7 +85,6 @@ class Simulation:
         else:
             self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor: SensorBoardInterface  # SensorBoard or RehostedSensor
-        self._last_x_edge = -math.inf  # s: the last X STEP edge the wire delivered
         sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
         if cfg.sensor_firmware:
             from ..boards.sensor.rehost.board import RehostedSensor  # unicorn only when asked
@@ -124,17 +119,9 @@ class Simulation:
         return S, float(theta)
 
     def x_step_edges(self, t_from: float, t_to: float) -> np.ndarray:
-        """Times (s) of the X stepper's STEP pulses in (t_from, t_to] not yet delivered: the
-        motion-sync wire from the stage board's X STEP line to the sensor board
-        (docs/firmware.md). A block the stage starts on the very instant of the previous
-        delivery (its third queued block arrived then, ending the lone-block hold) steps
-        first at that instant, so each delivery looks SYNC_LOOKBACK_S back and passes
-        every edge once."""
-        edges = self.stage.step_edges(self.limits.axis("X"), t_from - SYNC_LOOKBACK_S, t_to)
-        edges = edges[edges > self._last_x_edge]
-        if edges.size:
-            self._last_x_edge = float(edges[-1])
-        return edges
+        """Times (s) of the X stepper's STEP pulses in (t_from, t_to]: the motion-sync wire
+        from the stage board's X STEP line to the sensor board (docs/firmware.md)."""
+        return self.stage.step_edges(self.limits.axis("X"), t_from, t_to)
 
     def truth(self) -> dict:
         """What the host must estimate: v, n, X_R, c, t0s, the current pose and distance."""

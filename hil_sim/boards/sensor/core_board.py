@@ -10,6 +10,7 @@ the device exactly as on hardware.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -26,6 +27,28 @@ Pose = Callable[[float], tuple[np.ndarray, float]]  # time (s) -> (S in mm, thet
 Edges = Callable[[float, float], np.ndarray]  # (t_from, t_to] (s) -> times of sync edges (s)
 
 
+SYNC_LOOKBACK_S = 1e-3  # s: how far back each delivery of sync edges looks again
+
+
+class SyncWire:
+    """The X STEP wire as this board takes its edges: each delivery looks SYNC_LOOKBACK_S
+    back and passes every edge once. A block the stage starts on the very instant of the
+    previous delivery (its third queued block arrived then, ending Marlin's lone-block
+    hold) steps first at that instant, which a plain (t_from, t_to] window misses."""
+
+    def __init__(self, source: Callable[[float, float], np.ndarray]) -> None:
+        self.source = source
+        self.last = -math.inf  # s: the last edge delivered
+
+    def take(self, t_from: float, t_to: float) -> np.ndarray:
+        """The edges (s) up to t_to not delivered yet."""
+        e = self.source(t_from - SYNC_LOOKBACK_S, t_to)
+        e = e[e > self.last]
+        if e.size:
+            self.last = float(e[-1])
+        return e
+
+
 class SensorBoard:
     """One emulated NUCLEO: firmware core + laser + physics + link pacing."""
 
@@ -34,7 +57,8 @@ class SensorBoard:
                  link_bytes_per_s: float = 200_000.0, max_samples: int = 8192,
                  frozen_noise: bool = False, sync_edges: Edges | None = None) -> None:
         self.scene = scene
-        self.sync_source = sync_edges  # the stage's X STEP line, wired to the sync input
+        # the stage's X STEP line, wired to the sync input
+        self.sync_source = SyncWire(sync_edges) if sync_edges is not None else None
         self.sync_until = 0.0          # edges up to this time (s) have been delivered
         self.pose = pose
         self.model = model or SensorModel()
@@ -112,7 +136,7 @@ class SensorBoard:
     def _sync_to(self, t: float) -> None:
         """Deliver the motion-sync edges up to time t (s) to the core, before anything at t."""
         if self.sync_source is not None and t > self.sync_until:
-            edges = self.sync_source(self.sync_until, t)
+            edges = self.sync_source.take(self.sync_until, t)
             if edges.size:
                 self.core.sync_edges(np.rint(edges * TICK_HZ).astype(np.int64))
             self.sync_until = t

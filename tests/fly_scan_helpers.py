@@ -9,6 +9,7 @@ from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.session import run_plan
 from dmdsm.sim.boards.sensor.core_board import TICK_HZ
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}  # e mean, std (mm), paper §V-A2
@@ -42,13 +43,13 @@ def setup(emu, tmp_path, angles=(0.0, 90.0)):
 
 
 def record_poses(sim):
-    """Every laser shot's true sensor position, by device tick."""
+    """Every laser shot's device tick, true sensor position (X, Y, Z) and table angle."""
     shots = []
     pose = sim.pose
 
     def recording(t):
         S, theta = pose(t)
-        shots.append((round(t * TICK_HZ), *S))
+        shots.append((round(t * TICK_HZ), *S, theta))
         return S, theta
 
     sim.sensor.pose = recording
@@ -60,3 +61,13 @@ def scan_cmd(emu, tmp_path, scan_id, *extra):
             emu.stage, "--calibration", str(tmp_path / "cal.toml"), "--ranging",
             str(tmp_path / "ranging.json"), "--plan", str(tmp_path / "plan.toml"), "--db",
             str(tmp_path / "db"), "--scan-id", scan_id, "--no-home", *extra]
+
+
+def scan_in_process(emu, sensor, plan, cal, text, ranging, tmp_path):
+    """run_plan of `plan` with an open sensor client (closed after) into tmp_path/db."""
+    try:
+        with StageClient(emu.stage) as st:
+            return run_plan(sensor, st, plan, calibration=cal, calibration_toml=text,
+                            setup=ranging, db=tmp_path / "db", home=False)
+    finally:
+        sensor.close()

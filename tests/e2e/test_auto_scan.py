@@ -9,34 +9,17 @@ import subprocess
 import time
 
 import numpy as np
-from fly_scan_helpers import scan_cmd, setup
+from fly_scan_helpers import record_poses, scan_cmd, scan_in_process, setup
 
 from dmdsm.host.links.sensor import SensorClient
-from dmdsm.host.links.stage import StageClient
 from dmdsm.host.scan.auto import first_look_plan
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
 from dmdsm.host.scan.scanfile import read_scan
-from dmdsm.host.scan.session import run_plan
-from dmdsm.sim.boards.sensor.core_board import TICK_HZ
 
 PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[12.0, 26.0], angles_deg=[0.0, 90.0],
             step_mm=2.0, average=12, mode="auto", first_look_step_mm=10.0)
-
-
-def record(sim):
-    """Every laser shot's device tick, true sensor position and table angle."""
-    shots = []
-    pose = sim.pose
-
-    def recording(t):
-        S, theta = pose(t)
-        shots.append((round(t * TICK_HZ), *S, theta))
-        return S, theta
-
-    sim.sensor.pose = recording
-    return shots
 
 
 def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emulator,
@@ -44,14 +27,8 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     emu = emulator(speed=4.0, scene="aluminium_block", seed=21)
     ranging, cal, text, _ = setup(emu, tmp_path)
     plan = ScanPlan("aluminium_block", "aluminium", **PLAN)
-    shots = record(emu.sim)
-    sensor = SensorClient(emu.sensor)
-    try:
-        with StageClient(emu.stage) as st:
-            run = run_plan(sensor, st, plan, calibration=cal, calibration_toml=text,
-                           setup=ranging, db=tmp_path / "db", home=False)
-    finally:
-        sensor.close()
+    shots = record_poses(emu.sim)
+    run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
     assert run.status == "complete"
     a = run.auto
     assert a["first_look_lines"] == 4 * 8 and {0.0, 90.0} <= set(a["angles_deg"])

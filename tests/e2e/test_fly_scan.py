@@ -9,12 +9,11 @@ import subprocess
 import time
 
 import numpy as np
-from fly_scan_helpers import scan_cmd, setup
+from fly_scan_helpers import scan_cmd, scan_in_process, setup
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.scan.scanfile import read_scan
-from dmdsm.host.scan.session import run_plan
 
 
 def test_a_line_with_a_lost_waveform_is_measured_again_not_kept_with_a_hole(emulator,
@@ -33,12 +32,7 @@ def test_a_line_with_a_lost_waveform_is_measured_again_not_kept_with_a_hole(emul
         route(m)
 
     sensor._route = lossy
-    try:
-        with StageClient(emu.stage) as st:
-            run = run_plan(sensor, st, plan, calibration=cal, calibration_toml=text,
-                           setup=ranging, db=tmp_path / "db", home=False)
-    finally:
-        sensor.close()
+    run = scan_in_process(emu, sensor, plan, cal, text, ranging, tmp_path)
     assert run.status == "complete" and run.stats.lost == 1
     p = read_scan(run.path, waveforms=False).points
     first = p["point_index"] == 0

@@ -58,20 +58,7 @@ def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
                        calibration: dict) -> Outline:
     """The outline from the first look's stored lines (point_index < n_look_lines), both
     modalities' points in the object frame."""
-    d = writer.data
-    n = writer.n_done
-    idx = d["point_index"][:n]
-    sel = idx < n_look_lines
-    S = d["stage_position_mm"][:n][sel]
-    th = d["theta_deg"][:n][sel]
-    v, nn, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
-    P = []
-    for m in ("oa", "us"):
-        dist = d[f"distance_{m}_mm"][:n][sel]
-        ok = np.isfinite(dist)
-        if ok.any():
-            P.append(object_points(stage_points(S[ok], dist[ok], v), th[ok], nn, X_R))
-    P = np.vstack(P) if P else np.empty((0, 3))
+    P = _stored_points(writer, n_look_lines, calibration)
     return outline_from_points(P, plan.radius_mm, plan.height_mm,
                                z_step_mm=plan.first_look_step_mm)
 
@@ -235,14 +222,15 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
     return pts, via, share
 
 
-def _stored_points(writer: ScanWriter, n_lines: int, calibration: dict) -> np.ndarray:
-    """Object-frame points (mm), both modalities, of the file's lines before n_lines."""
+def _stored_points(writer: ScanWriter, n_lines: float, calibration: dict,
+                   modalities: tuple[str, ...] = ("oa", "us")) -> np.ndarray:
+    """Object-frame points (mm) of the modalities, from the file's lines before n_lines."""
     d, m = writer.data, writer.n_done
     sel = d["point_index"][:m] < n_lines
     v, nn, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
     S, th = d["stage_position_mm"][:m][sel], d["theta_deg"][:m][sel]
     out = [np.empty((0, 3))]
-    for mod in ("oa", "us"):
+    for mod in modalities:
         dist = d[f"distance_{mod}_mm"][:m][sel]
         ok = np.isfinite(dist)
         out.append(object_points(stage_points(S[ok], dist[ok], v), th[ok], nn, X_R))
@@ -285,14 +273,6 @@ def outline_coverage(writer: ScanWriter, auto: AutoPlan, calibration: dict,
                      spacing_mm: float) -> dict[str, float]:
     """Per modality, the share of the closed outline's surface with a stored point within
     spacing_mm (what `dmdsm scan` reports when no truth is known)."""
-    d, n = writer.data, writer.n_done
-    v, nn, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
-    S, th = d["stage_position_mm"][:n], d["theta_deg"][:n]
     ref = auto.outline.surface_points()
-    out = {}
-    for m in ("oa", "us"):
-        dist = d[f"distance_{m}_mm"][:n]
-        ok = np.isfinite(dist)
-        P = object_points(stage_points(S[ok], dist[ok], v), th[ok], nn, X_R)
-        out[m] = round(float(coverage(ref, P, spacing_mm)), 4)
-    return out
+    return {m: round(float(coverage(ref, _stored_points(writer, np.inf, calibration, (m,)),
+                                    spacing_mm)), 4) for m in ("oa", "us")}

@@ -102,34 +102,41 @@ def sample_rate(sensor: dict) -> float:
     return float(sensor["adc_rate_hz"]) / int(sensor.get("config_sample_rate_div", 1))
 
 
+def scan_dataset(scan: ScanData, window: int = WINDOW) -> Dataset:
+    """Every point of one scan (row i = the file's point row i), with its windows where it has
+    an arrival: what `assemble` takes the usable rows of, and what a 3D model places."""
+    if not scan.sample.get("material"):
+        raise ClassifyError(f"{scan.path} has no material label (scan plan [sample] material)")
+    X, has = {}, {}
+    for m in MODS:
+        X[m], has[m] = windows(scan.waveforms, arrivals(scan, m), window)
+    n = scan.n_points
+    avg = scan.points["n_average"][scan.points["received"]].astype(int)
+    return Dataset(X, has, np.array([str(scan.sample["material"])] * n),
+                   np.array([str(scan.sample["name"])] * n), sample_rate(scan.sensor), window,
+                   [str(scan.entry.get("scan_id", Path(scan.path).stem))],
+                   int(np.bincount(avg).argmax()) if len(avg) else 0)
+
+
 def assemble(paths: list[Path], window: int = WINDOW) -> Dataset:
     """The dataset of all points of these scan files (their sample rates must agree)."""
-    X: dict[str, list] = {m: [] for m in MODS}
-    has: dict[str, list] = {m: [] for m in MODS}
-    y, groups, scans, averages, fs = [], [], [], [], None
+    parts: list[Dataset] = []
+    averages: list[np.ndarray] = []
     for path in paths:
         scan = read_scan(path)
-        rate = sample_rate(scan.sensor)
-        if fs is not None and abs(rate - fs) > 1e-6 * fs:
-            raise ClassifyError(f"{path} was sampled at {rate:.0f} Hz, the others at "
-                                f"{fs:.0f} Hz: build one database per sample rate")
-        fs = rate
-        if not scan.sample.get("material"):
-            raise ClassifyError(f"{path} has no material label (scan plan [sample] material)")
-        for m in MODS:
-            w, ok = windows(scan.waveforms, arrivals(scan, m), window)
-            X[m].append(w)
-            has[m].append(ok)
-        n = scan.n_points
+        one = scan_dataset(scan, window)
+        if parts and abs(one.fs_hz - parts[0].fs_hz) > 1e-6 * parts[0].fs_hz:
+            raise ClassifyError(f"{path} was sampled at {one.fs_hz:.0f} Hz, the others at "
+                                f"{parts[0].fs_hz:.0f} Hz: build one database per sample rate")
+        parts.append(one)
         averages.append(scan.points["n_average"][scan.points["received"]])
-        y += [str(scan.sample["material"])] * n
-        groups += [str(scan.sample["name"])] * n
-        scans.append(str(scan.entry.get("scan_id", path.stem)))
-    if fs is None:
+    if not parts:
         raise ClassifyError("no scans to classify: scan objects into the database first")
     avg = np.concatenate(averages).astype(int)
-    ds = Dataset({m: np.vstack(X[m]) for m in MODS}, {m: np.concatenate(has[m]) for m in MODS},
-                 np.array(y), np.array(groups), fs, window, scans,
+    ds = Dataset({m: np.vstack([p.X[m] for p in parts]) for m in MODS},
+                 {m: np.concatenate([p.has[m] for p in parts]) for m in MODS},
+                 np.concatenate([p.y for p in parts]), np.concatenate([p.groups for p in parts]),
+                 parts[0].fs_hz, window, [s for p in parts for s in p.scans],
                  int(np.bincount(avg).argmax()) if len(avg) else 0)
     return ds.subset(ds.usable(MODS))  # points without any arrival carry no signal
 

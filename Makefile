@@ -13,7 +13,7 @@ FUZZ_SECONDS ?= 20
 
 APT_PACKAGES := gcc make clang libclang-rt-14-dev cppcheck gcc-arm-none-eabi \
   libnewlib-arm-none-eabi qemu-system-arm simavr libsimavr-dev libelf-dev pkg-config \
-  gcc-avr avr-libc
+  gcc-avr avr-libc chromium chromium-driver
 CFLAGS_HOST := -std=c11 -Wall -Wextra -Werror -pedantic -g -O1
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 PROTO_C := protocol/c/dmdsm_frame.c protocol/c/dmdsm_spec.c

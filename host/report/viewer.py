@@ -81,6 +81,7 @@ def _scripts() -> tuple[str, str]:
     return plotly_js, _RUNTIME
 
 
+@lru_cache(maxsize=1)
 def _csp() -> str:
     digests = [base64.b64encode(hashlib.sha256(s.encode()).digest()).decode()
                for s in _scripts()]

@@ -28,6 +28,8 @@ _EXPORTS = {  # name -> subpackage that defines it
     "scan_points": "scan", "validate_block": "scan", "list_scans": "scan",
     "predict_scan": "classify", "assemble": "classify", "fit": "classify",
     "load_model": "classify", "save_model": "classify",
+    "read_model": "model", "load_object_model": "model", "ObjectModel": "model",
+    "list_models": "model",
 }
 __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literally
     "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "Stage",
@@ -35,7 +37,7 @@ __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literal
     "MatchedFilter", "calibrate_range", "load_calibration", "solve", "read_raw", "center_points",
     "CalibrationError", "CalibrationResult", "ScanPlan", "load_plan", "run_plan", "read_scan",
     "scan_points", "validate_block", "list_scans", "predict_scan", "assemble", "fit",
-    "load_model", "save_model",
+    "load_model", "save_model", "read_model", "load_object_model", "ObjectModel", "list_models",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __getattr__
@@ -59,6 +61,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __get
         StreamSensor,
         UnsafeMove,
     )
+    from .model import ObjectModel, list_models, load_object_model, read_model
     from .ranging import MatchedFilter, RangingSetup, calibrate_range
     from .scan import (
         ScanPlan,

@@ -53,6 +53,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     q = psub.add_parser("list", parents=[common], help="the catalogue, with each file checked")
     q.add_argument("--object", help="only this object id")
     q.add_argument("--material", help="only this material")
+    q.add_argument("--models", action="store_true",
+                   help="the 3D models instead (one line per object and version, with whether "
+                        "their scans changed since)")
     q = psub.add_parser("show", parents=[common], help="one scan's metadata and plan")
     q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
     q = psub.add_parser("export", parents=[common], help="one scan's points as CSV and/or PLY")
@@ -94,6 +97,8 @@ def cmd_db(args: argparse.Namespace) -> int:
     from .errors import CliError
 
     try:
+        if args.action == "list" and args.models:
+            return _list_models(args)
         if args.action == "list":
             rows = list_scans(args.db, args.object, args.material)
             for r in rows:
@@ -230,6 +235,30 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
               f"points (paper: {'0.06 +/- 0.06' if m == 'oa' else '0.15 +/- 0.11'}); "
               f"block at x {f['pose']['x_mm']:.3f} y {f['pose']['y_mm']:.3f} mm, yaw "
               f"{f['pose']['yaw_deg']:.3f} deg")
+    return 0
+
+
+def _list_models(args: argparse.Namespace) -> int:
+    """`db list --models`: one line per model file (object, version, created, vertices, points,
+    supported share, largest material, status); --material keeps the models that hold it."""
+    from ..model.store import ModelError, list_models
+    from .errors import CliError
+
+    try:
+        rows = list_models(args.db, args.object)
+    except ModelError as e:
+        raise CliError(str(e)) from None
+    rows = [r for r in rows if not args.material or args.material in r["materials"]]
+    if args.json:
+        print(json.dumps(rows))
+    elif not rows:
+        print(f"{args.db}: no models")
+    for r in ([] if args.json else rows):
+        share = r["materials"].get(r["material"], 0.0)
+        material = f"{shown(r['material'])} {100 * share:.0f}%" if r["material"] else "-"
+        print(f"{shown(r['object_id']):<18} v{r['version']:<3} {shown(r['created']):<25} "
+              f"{r['n_vertices']:>7} vtx {r['n_points']:>7} pts "
+              f"{100 * r['supported']:5.1f}% supported  {material:<16} {shown(r['status'])}")
     return 0
 
 

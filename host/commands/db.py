@@ -58,10 +58,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "their scans changed since)")
     q = psub.add_parser("show", parents=[common], help="one scan's metadata and plan")
     q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
-    q = psub.add_parser("export", parents=[common], help="one scan's points as CSV and/or PLY")
-    q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
+    q = psub.add_parser("export", parents=[common],
+                        help="one scan's points as CSV and/or PLY, or scans' waveforms, poses, "
+                             "distances and labels as Parquet (--format parquet)")
+    q.add_argument("scan_id", nargs="*", metavar="SCAN_ID",
+                   help="scan id (`dmdsm db list`); with --format parquet any number (none: "
+                        "every scan)")
     q.add_argument("--csv", type=Path, help="points as CSV")
     q.add_argument("--ply", type=Path, help="object-frame point cloud as PLY")
+    q.add_argument("--format", choices=["parquet"],
+                   help="parquet: one row per waveform of the scans (docs/formats.md), to -o")
+    q.add_argument("-o", "--output", type=Path, help="the Parquet file (with --format parquet)")
+    q.add_argument("--object", help="with --format parquet: only this object's scans")
     psub.add_parser("rebuild", parents=[common],
                     help="index the scan files again (a damaged catalogue is set aside)")
     p.set_defaults(func=cmd_db)
@@ -125,6 +133,10 @@ def cmd_db(args: argparse.Namespace) -> int:
             return 0
     except CatalogueError as e:
         raise CliError(str(e)) from None
+    if args.action == "export":
+        if args.format == "parquet":
+            return _export_parquet(args)
+        args.scan_id = _one_scan_id(args)
     scan = _scan_file(args)
     if args.action == "show":
         s = scan_summary(scan)
@@ -151,6 +163,56 @@ def cmd_db(args: argparse.Namespace) -> int:
     print(json.dumps({"scan_id": args.scan_id, "points": n, "csv": str(args.csv or ""),
                       "ply": str(args.ply or "")}) if args.json else
           f"exported {n} points of {args.scan_id}")
+    return 0
+
+
+def _one_scan_id(args: argparse.Namespace) -> str:
+    """The scan of a CSV/PLY export; CliError for a Parquet option or not one id."""
+    from .errors import CliError
+
+    if args.output or args.object:
+        flag = "-o" if args.output else "--object"
+        raise CliError(f"db export: {flag} belongs to --format parquet; give --format parquet "
+                       f"-o FILE, or one SCAN_ID with --csv FILE and/or --ply FILE")
+    if not args.scan_id:
+        raise CliError("db export needs a SCAN_ID (`dmdsm db list`) for --csv/--ply, or "
+                       "--format parquet -o FILE for the waveforms of many scans")
+    if len(args.scan_id) > 1:
+        raise CliError(f"db export --csv/--ply takes one SCAN_ID (got {len(args.scan_id)}); "
+                       f"several scans go to one file with --format parquet -o FILE")
+    return args.scan_id[0]
+
+
+def _export_parquet(args: argparse.Namespace) -> int:
+    """`db export --format parquet -o FILE [--object ID] [SCAN_ID ...]`: the summary on
+    stdout, each scan left out on stderr."""
+    from ..scan.parquet_export import ExportError, export_parquet
+    from .errors import CliError
+
+    if args.csv or args.ply:
+        raise CliError("db export: --csv/--ply write one scan's points; --format parquet "
+                       "writes to -o FILE only (drop --csv/--ply or --format)")
+    if not args.output:
+        raise CliError("db export --format parquet needs -o FILE (e.g. -o scans.parquet)")
+    check_output(args.output, flag="-o")
+    try:
+        s = export_parquet(args.db, args.output, object_id=args.object,
+                           scan_ids=list(dict.fromkeys(args.scan_id)) or None, model_links={})
+    except (CatalogueError, ExportError) as e:
+        raise CliError(str(e)) from None
+    for k in s["skipped"]:
+        print(f"dmdsm: skipped {shown(k['scan_id'])}: {shown(k['reason'])}", file=sys.stderr)
+    for k in s["changed"]:
+        print(f"dmdsm: {shown(k['scan_id'])} was exported, but its file is not the one the "
+              f"catalogue recorded (sha256 {k['file_hash'][:12]}, catalogue "
+              f"{k['catalogue_hash'][:12] or 'none'}); `dmdsm db list` shows it",
+              file=sys.stderr)
+    if args.json:
+        print(json.dumps(s))
+    else:
+        print(f"exported {s['rows']} waveforms of {s['scans']} scans to {shown(args.output)} "
+              f"({s['bytes'] / 1e6:.1f} MB, {s['row_groups']} row groups)" +
+              (f"; {len(s['skipped'])} scans left out (above)" if s["skipped"] else ""))
     return 0
 
 

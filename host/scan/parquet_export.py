@@ -107,18 +107,18 @@ def export_parquet(db_dir: Path, out_path: Path, *, object_id: str | None = None
     n_samples, dtype, rate = ready[0].layout
     step = rows_per_group or max(1, GROUP_BYTES // (n_samples * np.dtype(dtype).itemsize))
     sch = schema(n_samples, dtype, _metadata(ready, rate, n_samples, dtype))
-    links = model_links or {}
+    links, groups = model_links or {}, 0
     with atomic_output(out_path) as tmp:
         writer = pq.ParquetWriter(str(tmp), sch, compression="zstd")
         try:
             for r in ready:
-                _write_scan(writer, sch, r, step, str(links.get(r.row["object_id"], "")))
+                groups += _write_scan(writer, sch, r, step,
+                                      str(links.get(r.row["object_id"], "")))
         finally:
             writer.close()
-    meta = pq.ParquetFile(out_path).metadata
-    return {"path": str(out_path), "rows": meta.num_rows, "scans": len(ready),
+    return {"path": str(out_path), "rows": sum(r.n_rows for r in ready), "scans": len(ready),
             "scan_ids": [r.row["scan_id"] for r in ready], "bytes": Path(out_path).stat().st_size,
-            "row_groups": meta.num_row_groups, "seconds": round(time.monotonic() - t0, 3),
+            "row_groups": groups, "seconds": round(time.monotonic() - t0, 3),
             "skipped": skipped,
             "changed": [{"scan_id": r.row["scan_id"], "catalogue_hash": r.row["content_hash"],
                          "file_hash": r.file_hash} for r in ready if r.meta.get("changed")]}
@@ -131,7 +131,7 @@ def _select(db_dir: Path, object_id: str | None, scan_ids: list[str] | None) -> 
     known = {r["scan_id"]: r for r in rows}
     for sid in scan_ids or []:
         if sid not in known:
-            names = ", ".join(list(known)[:10]) or "none"
+            names = one_line(", ".join(list(known)[:10]) or "none")
             raise ExportError(f"no scan {sid!r} in {db_dir} (known: {names})")
         if object_id and known[sid]["object_id"] != object_id:
             raise ExportError(f"scan {sid!r} is of object {known[sid]['object_id']!r}, not "
@@ -264,19 +264,20 @@ def _metadata(ready: list[_Ready], rate: float, n_samples: int, dtype: str) -> d
             "scans": json.dumps(scans), "ranging_setups": json.dumps(setups)}
 
 
-def _write_scan(writer: object, sch: object, r: _Ready, step: int, model: str) -> None:
-    """Stream one scan into the writer: a row group per `step` waveforms. A failure to read
-    the scan is an ExportError (the output is then dropped); a failure to write is not
-    caught here (atomic_output names it)."""
+def _write_scan(writer: object, sch: object, r: _Ready, step: int, model: str) -> int:
+    """Stream one scan into the writer, a row group per `step` waveforms; returns the row
+    groups. A failure to read the scan is an ExportError (the output is then dropped); a
+    failure to write is not caught here (atomic_output names it)."""
     tables = _tables(sch, r, step, model)
     try:
-        _drain(writer, tables, r)
+        return _drain(writer, tables, r)
     finally:
         tables.close()  # its scan file too, if the writer failed
 
 
-def _drain(writer: object, tables: Iterator[object], r: _Ready) -> None:
+def _drain(writer: object, tables: Iterator[object], r: _Ready) -> int:
     """Write each table as one row group; a table that cannot be read is an ExportError."""
+    groups = 0
     while True:
         try:
             table = next(tables, None)
@@ -286,8 +287,9 @@ def _drain(writer: object, tables: Iterator[object], r: _Ready) -> None:
                 f"({type(e).__name__}: {e}); nothing was written: export again, or leave it "
                 f"out", 400)) from None
         if table is None:
-            return
+            return groups
         writer.write_table(table, row_group_size=table.num_rows)
+        groups += 1
 
 
 def _tables(sch: object, r: _Ready, step: int, model: str) -> Iterator[object]:

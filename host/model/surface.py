@@ -1,0 +1,210 @@
+"""A closed surface from an object's fused points, with sigma and support per vertex.
+
+Method, and why. (1) Each point gets an oriented normal: the PCA normal of its neighbours,
+signed against the beam (toward `view_dir`, the unit vector from the point toward the sensor),
+which is the one thing the scan knows for sure about outside and inside. (2) A Hoppe-style
+signed distance on a voxel grid: at each node the mean of (x - p_j) . n_j over its 8 nearest
+points, weighted toward the nearest; far from the data this extends the tangent planes, so a
+hole the scans did not see is closed by the grid (its faces lie at most a margin beyond the
+points) instead of leaving the surface open. The grid's outer layer is forced outside, so
+marching cubes (skimage) always yields closed surfaces; the largest component is kept. (3) The
+grid only gives topology and a first position (about a voxel): each vertex is then moved along
+its local normal onto a robust weighted quadratic fit of the points near it (MLS, fuse.local_fit)
+- a quadratic, not a plane, so a radius of 15 mm is followed to a few um over the support - and
+its sigma is that fit's height std propagated from the points' covariances (n^T Sigma n per
+point, sandwich over the fit's weights), inflated by the fit's reduced chi-square where the
+residuals exceed the covariances (the model or the noise is worse than stated), plus the common
+(calibration) part, which a local fit cannot average down. Vertices with too few points near
+them, or with all their points on one side (a hole's rim), are unsupported: not moved, sigma
+NaN. Poisson reconstruction would smooth more but moves every vertex by a global solve whose
+error is hard to state per vertex; the local fit's error is explicit, which is the point here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
+from skimage.measure import marching_cubes
+
+from .fuse import local_fit
+
+_CHUNK = 20000
+CHI2_SIGNIFICANT = 2.0   # inflate sigma by chi^2 where it exceeds 1 by this many of its stds
+
+
+@dataclass
+class SurfaceModel:
+    """A closed triangle mesh in the object frame (mm) with per-vertex quality."""
+
+    vertices_mm: np.ndarray        # (V, 3) f8
+    faces: np.ndarray              # (F, 3) i4, counter-clockwise seen from outside
+    normals: np.ndarray            # (V, 3) f8, unit, outward
+    sigma_mm: np.ndarray           # (V,) f8, std of the vertex along its normal; NaN unsupported
+    support: np.ndarray            # (V,) i4, points within the support radius
+    supported: np.ndarray          # (V,) bool
+    params: dict = field(default_factory=dict)
+
+
+def point_normals(P_mm: np.ndarray, view_dir: np.ndarray, k: int = 16) -> np.ndarray:
+    """Unit normals (k, 3) of points (mm): the PCA normal of each point's k nearest points,
+    signed to point toward view_dir (unit vectors from each point toward the sensor)."""
+    P = np.asarray(P_mm, float)
+    k = min(k, len(P))
+    _, idx = cKDTree(P).query(P, k=k, workers=-1)
+    out = np.empty_like(P)
+    for lo in range(0, len(P), _CHUNK):
+        Q = P[idx[lo:lo + _CHUNK]]
+        Q = Q - Q.mean(axis=1, keepdims=True)
+        _, vec = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
+        out[lo:lo + _CHUNK] = vec[:, :, 0]
+    flip = np.einsum("ki,ki->k", out, np.asarray(view_dir, float)) < 0
+    out[flip] *= -1
+    return out
+
+
+def signed_distance(nodes: np.ndarray, tree: cKDTree, P: np.ndarray, normals: np.ndarray,
+                    h_mm: float, k: int = 8) -> np.ndarray:
+    """Hoppe signed distance (mm, negative inside) at nodes (m, 3): the mean of
+    (x - p_j) . n_j over the k nearest oriented points, weighted exp(-(d_j^2 - d_0^2)/2h^2)."""
+    k = min(k, len(P))
+    out = np.empty(len(nodes))
+    for lo in range(0, len(nodes), 200000):
+        x = nodes[lo:lo + 200000]
+        dist, idx = tree.query(x, k=k, workers=-1)
+        dist, idx = dist.reshape(len(x), k), idx.reshape(len(x), k)
+        w = np.exp(-(dist ** 2 - dist[:, :1] ** 2) / (2 * h_mm ** 2))
+        f = np.einsum("mki,mki->mk", x[:, None, :] - P[idx], normals[idx])
+        out[lo:lo + 200000] = (w * f).sum(axis=1) / w.sum(axis=1)
+    return out
+
+
+def _grid(P: np.ndarray, spacing: float, pad: float, max_voxels: int
+          ) -> tuple[np.ndarray, tuple[int, int, int], float]:
+    """Origin, shape and spacing (coarsened to stay within max_voxels) of the voxel grid."""
+    lo, hi = P.min(axis=0) - pad, P.max(axis=0) + pad
+    for _ in range(20):
+        shape = tuple(int(np.ceil(e / spacing)) + 1 for e in hi - lo)
+        if np.prod(shape, dtype=float) <= max_voxels:
+            return lo, shape, spacing
+        spacing *= 1.02 * (np.prod(shape, dtype=float) / max_voxels) ** (1 / 3)
+    raise ValueError("the voxel grid does not fit the voxel budget")
+
+
+def _hoppe_grid(P: np.ndarray, normals: np.ndarray, tree: cKDTree, origin: np.ndarray,
+                shape: tuple[int, int, int], s: float, h: float) -> np.ndarray:
+    """signed_distance on the grid: exact (8 nearest points) within 2.5 voxels of a point;
+    farther, from the nearest occupied voxel's point (Euclidean distance transform), which is
+    all the far field needs (its sign, and where a hole's closure falls)."""
+    vox = np.clip(np.rint((P - origin) / s).astype(np.intp), 0, np.array(shape) - 1)
+    rep = np.full(shape, -1, np.intp)
+    rep[tuple(vox.T)] = np.arange(len(P))
+    dist, ind = distance_transform_edt(rep < 0, return_indices=True)
+    near = rep[tuple(ind)]
+    axes = [origin[i] + s * np.arange(shape[i]) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+    f = np.einsum("...i,...i->...", grid - P[near], normals[near])
+    band = dist <= 2.5
+    f[band] = signed_distance(grid[band], tree, P, normals, h)
+    return f
+
+
+def _mesh(f: np.ndarray, origin: np.ndarray, spacing: float) -> tuple[trimesh.Trimesh, int]:
+    """The largest closed component of f's zero level, outward, and how many were dropped."""
+    f[0], f[-1], f[:, 0], f[:, -1], f[:, :, 0], f[:, :, -1] = (spacing,) * 6
+    verts, faces, _, _ = marching_cubes(f, 0.0, spacing=(spacing,) * 3, allow_degenerate=False)
+    mesh = trimesh.Trimesh(verts + origin, faces, process=True)
+    parts = mesh.split(only_watertight=False)
+    if len(parts) == 0:
+        raise ValueError("the points enclose no volume")
+    mesh = max(parts, key=lambda m: abs(m.volume))
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh, len(parts) - 1
+
+
+def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
+                  spacing_mm: float = 1.0, support_radius_mm: float | None = None,
+                  min_support: int = 10, *, cov_common: np.ndarray | None = None,
+                  max_voxels: int = 3_000_000, max_neighbours: int = 48,
+                  max_offcentre: float = 1.0) -> SurfaceModel:
+    """The closed surface of points P_mm (k, 3) mm with covariances cov (k, 3, 3) mm^2 (all of
+    it) and view_dir (k, 3) unit vectors toward the sensor, in the object frame.
+
+    spacing_mm: the voxel grid's spacing (coarsened to keep within max_voxels nodes).
+    support_radius_mm: the local fit's radius (Gaussian weight scale half of it); default 2.5
+    times the points' median nearest-neighbour spacing, within 1.5..5 mm. A vertex is supported
+    when it has >= min_support points within the radius, their weighted centroid lies within
+    max_offcentre weight scales of it along the surface (not a one-sided rim) and the fit moves
+    it less than half the radius; the others keep the grid's position and get sigma NaN.
+    cov_common (k, 3, 3) mm^2: the part of cov shared by neighbouring points (fuse's
+    covariance_parts' common part), added to sigma^2 as if fully correlated (not averaged).
+    Raises ValueError for fewer than 20 finite points or shapes that do not match."""
+    t0 = time.perf_counter()
+    P = np.asarray(P_mm, float)
+    cov = np.asarray(cov, float)
+    vd = np.asarray(view_dir, float)
+    if P.ndim != 2 or P.shape[1] != 3 or cov.shape != (len(P), 3, 3) or vd.shape != P.shape:
+        raise ValueError("P (k, 3), cov (k, 3, 3) and view_dir (k, 3) must match")
+    ok = np.isfinite(P).all(axis=1) & np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(vd).all(1)
+    if ok.sum() < 20:
+        raise ValueError(f"{int(ok.sum())} finite points: too few for a surface (need 20)")
+    P, cov, vd = P[ok], cov[ok], vd[ok]
+    common = np.zeros_like(cov) if cov_common is None else np.asarray(cov_common, float)[ok]
+    own = cov - common
+    tree = cKDTree(P)
+    gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
+    R = float(np.clip(2.5 * gap, 1.5, 5.0)) if support_radius_mm is None else support_radius_mm
+    h = R / 2
+    normals_p = point_normals(P, vd)
+    origin, shape, s = _grid(P, spacing_mm, R + 2 * spacing_mm, max_voxels)
+    f = _hoppe_grid(P, normals_p, tree, origin, shape, s, h)
+    mesh, dropped = _mesh(f, origin, s)
+    V = np.array(mesh.vertices, float)
+    ref = np.array(mesh.vertex_normals, float)
+    support = np.asarray(tree.query_ball_point(V, R, return_length=True, workers=-1), np.int32)
+    Kq = min(max_neighbours, len(P))
+    sigma = np.full(len(V), np.nan)
+    normals = ref.copy()
+    supported = np.zeros(len(V), bool)
+    offset = np.zeros(len(V))
+    for lo in range(0, len(V), _CHUNK):
+        sl = slice(lo, lo + _CHUNK)
+        dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R, workers=-1)
+        dist, idx = dist.reshape(-1, Kq), idx.reshape(-1, Kq)
+        valid = np.isfinite(dist)
+        fit_ok = valid.sum(axis=1) >= max(min_support, 6)
+        sel = np.flatnonzero(fit_ok)
+        if len(sel) == 0:
+            continue
+        ii = np.where(valid[sel], idx[sel], 0)
+        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel])
+        w = r["w"]
+        nn = r["frame_normal"]
+        sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
+        var_c = (w * sc).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
+        good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
+                & np.isfinite(r["var"]) & (support[sl][sel] >= min_support))
+        g = sel[good] + lo
+        offset[g] = r["offset"][good]
+        V[g] += r["offset"][good, None] * nn[good]
+        normals[g] = r["normal"][good]
+        chi2 = r["chi2"][good]
+        misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(2 / np.maximum(r["n_eff"][good] - 6, 1))
+        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good])
+        supported[g] = True
+    mesh = trimesh.Trimesh(V, mesh.faces, process=False)
+    normals[~supported] = np.array(mesh.vertex_normals, float)[~supported]
+    params = {"spacing_mm": s, "support_radius_mm": R, "weight_scale_mm": h,
+              "min_support": min_support, "max_offcentre": max_offcentre,
+              "point_spacing_mm": gap, "n_points": int(len(P)),
+              "n_dropped_nonfinite": int((~ok).sum()), "grid_shape": list(shape),
+              "components_dropped": dropped, "watertight": bool(mesh.is_watertight),
+              "max_move_mm": float(np.abs(offset).max(initial=0.0)),
+              "build_s": time.perf_counter() - t0}
+    return SurfaceModel(V, np.asarray(mesh.faces, np.int32), normals, sigma, support,
+                        supported, params)

@@ -1,0 +1,190 @@
+"""The closed surface (host/model/surface.py): sphere, cylinder and box surfaces within their
+stated sigma by Monte Carlo at the sensor's noise, watertight and outward, a radius of 15 mm
+followed to a few um, holes closed but unsupported, the voxel budget kept."""
+
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from dmdsm.host.model.surface import SurfaceModel, build_surface, point_normals
+
+OA, US = 0.08, 0.18    # the distance's std along the beam (mm)
+
+
+def unit(a):
+    return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def sphere(gap, R=20.0):
+    """Points about gap mm apart on a sphere, their outward normals, the exact signed distance."""
+    n = int(4 * np.pi * R * R / gap ** 2)
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), np.pi * (1 + 5 ** 0.5) * i
+    nr = np.column_stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)])
+    return R * nr, nr, lambda X: np.linalg.norm(X, axis=1) - R
+
+
+def cylinder(gap, R=15.0, H=40.0, top=True):
+    """A capped cylinder (the top cap left out unless top) standing on z = 0."""
+    na, nz = int(2 * np.pi * R / gap), int(H / gap)
+    th, z = np.meshgrid(np.arange(na) * 2 * np.pi / na, (np.arange(nz) + 0.5) * H / nz)
+    th, z = th.ravel(), z.ravel()
+    P = [np.column_stack([R * np.cos(th), R * np.sin(th), z])]
+    N = [np.column_stack([np.cos(th), np.sin(th), 0 * th])]
+    g = np.arange(-R, R + gap, gap)
+    X, Y = (a.ravel() for a in np.meshgrid(g, g))
+    m = X ** 2 + Y ** 2 < R ** 2 - 0.01
+    for zc, nz_ in [(0.0, -1.0)] + ([(H, 1.0)] if top else []):
+        P.append(np.column_stack([X[m], Y[m], np.full(m.sum(), zc)]))
+        N.append(np.tile([0, 0, nz_], (m.sum(), 1)))
+
+    def dist(Q):
+        dr = np.hypot(Q[:, 0], Q[:, 1]) - R
+        dz = np.maximum(-Q[:, 2], Q[:, 2] - H)
+        return (np.hypot(np.maximum(dr, 0), np.maximum(dz, 0))
+                + np.minimum(np.maximum(dr, dz), 0))
+    return np.vstack(P), np.vstack(N), dist
+
+
+def box(gap, a=(40.0, 30.0, 20.0)):
+    """A box centred on the origin."""
+    a = np.array(a)
+    P, N = [], []
+    for ax in range(3):
+        o = [i for i in range(3) if i != ax]
+        G1, G2 = np.meshgrid(np.arange(gap / 2, a[o[0]], gap), np.arange(gap / 2, a[o[1]], gap))
+        for side in (0, 1):
+            Q = np.zeros((G1.size, 3))
+            Q[:, o[0]], Q[:, o[1]], Q[:, ax] = G1.ravel(), G2.ravel(), side * a[ax]
+            n = np.zeros(3)
+            n[ax] = 1.0 if side else -1.0
+            P.append(Q)
+            N.append(np.tile(n, (len(Q), 1)))
+
+    def dist(X):
+        q = np.abs(X) - a / 2
+        return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+    return np.vstack(P) - a / 2, np.vstack(N), dist
+
+
+def measure(P, nr, sd, rng, tilt=0.4, stage=0.01):
+    """The sensor's view: beams tilted from the normal, the distance's noise along the beam
+    (std sd), the stage's noise per axis; returns noisy points, covariances, view_dir."""
+    vd = unit(nr + rng.normal(0, tilt, nr.shape))
+    steep = np.einsum("ki,ki->k", vd, nr) < 0.3
+    vd[steep] = nr[steep]
+    Q = P + rng.normal(0, sd, len(P))[:, None] * vd + rng.normal(0, stage, P.shape)
+    cov = sd ** 2 * np.einsum("ki,kj->kij", vd, vd) + stage ** 2 * np.eye(3)
+    return Q, cov, vd
+
+
+def check_mesh(m: SurfaceModel):
+    assert m.vertices_mm.dtype == np.float64 and m.faces.dtype == np.int32
+    assert m.params["watertight"]
+    assert np.allclose(np.linalg.norm(m.normals, axis=1), 1.0)
+    assert np.array_equal(np.isnan(m.sigma_mm), ~m.supported)
+
+
+@pytest.mark.parametrize("sd", [OA, US])
+@pytest.mark.parametrize("shape", [sphere, cylinder, box])
+def test_sigma_holds_by_monte_carlo(shape, sd):
+    """Two noise draws at about 1 mm spacing: RMS of (vertex error / sigma) within 0.8..1.25,
+    no bias beyond a fifth of sigma, every vertex supported, normals outward."""
+    rng = np.random.default_rng(int(sd * 1000) + len(shape.__name__))
+    z, e = [], []
+    for gap in (0.9, 1.2):
+        P, nr, dist = shape(gap)
+        Q, cov, vd = measure(P, nr, sd, rng)
+        m = build_surface(Q, cov, vd)
+        check_mesh(m)
+        assert m.supported.all()
+        err = dist(m.vertices_mm)
+        z.append(err / m.sigma_mm)
+        e.append(err)
+        h = 1e-3   # the exact surface's gradient: outward
+        grad = np.column_stack([dist(m.vertices_mm + h * np.eye(3)[i]) - err
+                                for i in range(3)]) / h
+        assert np.median(np.einsum("ki,ki->k", unit(grad), m.normals)) > 0.99
+        assert (np.einsum("ki,ki->k", unit(grad), m.normals) > 0).mean() > 0.98
+    z = np.concatenate(z)
+    rms = np.sqrt(np.mean(z ** 2))
+    assert 0.8 < rms < 1.25, rms
+    assert abs(z.mean()) < 0.2
+    assert np.sqrt(np.mean(np.concatenate(e) ** 2)) < sd     # the fit beats a single point
+
+
+@pytest.mark.parametrize("shape", [sphere, cylinder])
+def test_curvature_bias_is_a_few_um(shape):
+    """Exact points on a radius of 15 mm: the supported vertices lie on it within 5 um (away
+    from the cylinder's cap edges, where a smooth fit must round the corner)."""
+    P, nr, dist = shape(1.0, R=15.0)
+    cov = np.tile(1e-6 * np.eye(3), (len(P), 1, 1))
+    m = build_surface(P, cov, nr)
+    e = dist(m.vertices_mm)
+    away = m.supported & (np.abs(m.vertices_mm[:, 2] - 20) < 16)
+    assert np.abs(e[away]).max() < 0.005
+
+
+def test_holes_are_closed_but_unsupported():
+    """An open-topped cylinder with a window cut from its side: the mesh closes over both, the
+    vertices far from every point are unsupported with sigma NaN, and the supported ones still
+    lie within their sigma of the cylinder."""
+    rng = np.random.default_rng(3)
+    P, nr, dist = cylinder(1.0, top=False)
+    window = (P[:, 0] > 0) & (np.abs(np.arctan2(P[:, 1], P[:, 0])) < 0.5) & \
+        (np.abs(P[:, 2] - 20) < 6)
+    P, nr = P[~window], nr[~window]
+    Q, cov, vd = measure(P, nr, OA, rng)
+    m = build_surface(Q, cov, vd)
+    check_mesh(m)
+    near = cKDTree(Q).query(m.vertices_mm)[0]
+    R = m.params["support_radius_mm"]
+    assert not m.supported[near > R].any()
+    assert (near > 2 * R).sum() > 50            # the top and the window are closed over
+    top = m.vertices_mm[:, 2] > 40 + 1
+    assert top.sum() > 20 and not m.supported[top].any()
+    win = ((m.vertices_mm[:, 0] > 12) & (np.abs(m.vertices_mm[:, 1]) < 3)
+           & (np.abs(m.vertices_mm[:, 2] - 20) < 2))
+    assert win.sum() > 3 and not m.supported[win].any()
+    z = dist(m.vertices_mm[m.supported]) / m.sigma_mm[m.supported]
+    assert 0.8 < np.sqrt(np.mean(z ** 2)) < 1.25
+    assert (m.support[~m.supported] < m.params["min_support"]).any()
+    assert (m.support[m.supported] >= m.params["min_support"]).all()
+
+
+def test_normals_follow_the_view_not_the_order():
+    """Point normals point toward the sensor whatever side PCA picked."""
+    P, nr, _ = sphere(1.0)
+    assert (np.einsum("ki,ki->k", point_normals(P, nr), nr) > 0.99).all()
+    assert (np.einsum("ki,ki->k", point_normals(P, -nr), nr) < -0.99).all()
+
+
+def test_voxel_budget_coarsens_the_grid():
+    P, nr, dist = sphere(1.0)
+    cov = np.tile(0.01 * np.eye(3), (len(P), 1, 1))
+    m = build_surface(P, cov, nr, spacing_mm=0.25, max_voxels=100_000)
+    assert np.prod(m.params["grid_shape"]) <= 100_000
+    assert m.params["spacing_mm"] > 0.25
+    check_mesh(m)
+
+
+def test_refuses_too_few_or_mismatched_points():
+    P, nr, _ = sphere(1.0)
+    cov = np.tile(0.01 * np.eye(3), (len(P), 1, 1))
+    with pytest.raises(ValueError, match="too few"):
+        build_surface(P[:19], cov[:19], nr[:19])
+    with pytest.raises(ValueError, match="must match"):
+        build_surface(P, cov[:-1], nr)
+
+
+def test_20k_points_build_in_seconds():
+    rng = np.random.default_rng(5)
+    P, nr, dist = sphere(1.0, R=40.0)
+    assert len(P) > 20000
+    Q, cov, vd = measure(P, nr, OA, rng)
+    t = time.perf_counter()
+    m = build_surface(Q, cov, vd)
+    assert time.perf_counter() - t < 15.0    # a few seconds on 2 idle cores
+    assert m.supported.all()

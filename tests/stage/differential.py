@@ -568,12 +568,31 @@ def motion(stages: list[Stage], groups: list[Group], tol: Tolerance,
     return out
 
 
+def summary(figs: list[Figures], groups: list[Group]) -> str:
+    """The motion part's largest differences over all groups."""
+    def worst(xs: list[np.ndarray]) -> float:
+        xs = [np.abs(x) for x in xs if len(x)]
+        return 1e3 * float(max(x.max() for x in xs)) if xs else math.nan
+    pos = np.max([f.pos_raw for f in figs], axis=0)
+    start = [1e3 * f.start_diff for f in figs]
+    return (f"motion: {len(groups)} sequences, {sum(len(g.moves) for g in groups)} moves, "
+            f"{sum(f.total[1] for f in figs):.1f} s; Marlin minus emulator: first step "
+            f"{min(start):+.1f}..{max(start):+.1f} ms, block times within "
+            f"{worst([f.block_diff for f in figs]):.1f} ms, block ends "
+            f"within {worst([f.end_diff for f in figs]):.1f} ms, sequences within "
+            f"{worst([np.array([f.total[1] - f.total[0]]) for f in figs]):.1f} ms; positions "
+            f"apart by at most " + " ".join(f"{a}{v:.3f}" for a, v in zip(AXES, pos))
+            + f"; {sum(bool(f.failures) for f in figs)} sequences outside the tolerance")
+
+
 def main() -> int:
     """Run both, print the differences; exit 1 if any."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("elf")
     ap.add_argument("--lines", type=int, default=300)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--motion", type=int, default=30,
+                    help="sequences of joined moves whose motion is compared (0: none)")
     args = ap.parse_args()
     stages = [Stage(""), Stage(args.elf)]
     for s in stages:
@@ -599,7 +618,18 @@ def main() -> int:
         for s in stages:
             s.close()
     print(f"{len(history)} lines, {diffs} with different replies")
-    return 1 if diffs else 0
+    bad = 0
+    if args.motion > 0:
+        groups = motion_groups(random.Random(args.seed), args.motion)
+        stages = [Stage(""), Stage(args.elf)]  # from power-up again, both in step
+        try:
+            figs = motion(stages, groups, Tolerance())
+        finally:
+            for s in stages:
+                s.close()
+        bad = sum(bool(f.failures) for f in figs)
+        print(summary(figs, groups))
+    return 1 if diffs or bad else 0
 
 
 if __name__ == "__main__":

@@ -1,0 +1,250 @@
+"""An object's 3D model from its scans in the database: the points fused with covariances, the
+surface, and each vertex's material from the classifier's probabilities of the waveforms near it.
+
+Every finished scan of the object in the catalogue whose file still matches its content hash
+is used (all levels, angles, both modalities, several sessions); a scan file that changed or
+is gone is left out and said. The model records each scan's content hash, so a later change
+makes it stale (host/model/store.py).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..classify.materials import ClassifyError, FusedModel, scan_dataset
+from ..classify.model_file import check_provenance, load_model
+from ..scan.catalogue import list_scans, verify
+from ..scan.points import MODS, scan_points
+from ..scan.reconstruct import object_points
+from ..scan.scanfile import ScanData, ScanFileError, read_scan
+from .fuse import REASONS, covariance_parts, outliers
+from .store import ModelError, ObjectModel, check_object_id, utc_now
+from .surface import build_surface
+
+SUPPORT_POINTS = 30        # the support radius holds about this many points (median)
+LEVELS_SPANNED = 5         # ... and spans this many levels of the scans (2.5 level gaps)
+MATERIAL_RADIUS_MM = 3.0   # waveforms within this of a vertex give it their probabilities
+STAGE_STD_MM = 0.005       # the stage's repeatability per axis (Marlin's step: 1/80 mm)
+TABLE_STD_DEG = 0.01       # the turntable's angle repeatability
+Progress = Callable[[str], None]
+
+
+def object_scans(db_dir: Path, object_id: str) -> tuple[list[dict], list[str]]:
+    """The catalogue rows of the object's finished scans whose files match their hashes, and
+    one line per scan left out (unfinished, changed, missing)."""
+    rows, left = [], []
+    for row in list_scans(Path(db_dir), object_id):
+        state = verify(row)
+        if state == "ok":
+            rows.append(row)
+        else:
+            left.append(f"scan {row['scan_id']} left out: {state}")
+    return rows, left
+
+
+def _view_dirs(scan: ScanData, theta_deg: np.ndarray) -> np.ndarray:
+    """Unit vectors (k, 3) from each point toward the sensor, in the object frame: -v
+    turned back by the table's angle (the direction part of object_points)."""
+    cal = scan.calibration
+    v = np.asarray(cal["v"], float)
+    v = v / np.linalg.norm(v)
+    zero = np.zeros(3)
+    return -object_points(np.tile(v, (len(theta_deg), 1)), theta_deg, np.asarray(cal["n"]),
+                          zero)
+
+
+def _std(cal: dict, key: str) -> np.ndarray:
+    """A calibration's per-component std (zeros where the file carries none)."""
+    s = np.asarray(cal.get(key, (0.0, 0.0, 0.0)), float).reshape(-1)
+    return s if s.shape == (3,) and np.all(np.isfinite(s)) else np.zeros(3)
+
+
+def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
+                   table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
+    """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
+    (mm^2; `common`: the part shared by neighbours, calibration and table), the direction
+    toward the sensor, modality (0 OA, 1 US), point index and the level gap (mm) of its
+    modality's points in this scan."""
+    pts = scan_points(scan)
+    cal = scan.calibration
+    keys = ("P", "cov", "common", "view", "mod", "index", "gap")
+    out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    for k, m in enumerate(MODS):
+        p = pts[m]
+        if not len(p["P"]):
+            continue
+        d_std = np.where(np.isfinite(p["d_std"]), p["d_std"], np.nan)
+        if np.isnan(d_std).any():
+            raise ModelError(f"{scan.path} carries no ranging setup for {m.upper()} distance "
+                             f"stds: rescan with this dmdsm, or range it again")
+        P, own, common = covariance_parts(
+            p["S"], p["d"], d_std, p["theta_deg"], cal["v"], cal["n"], cal["X_R"],
+            _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
+            stage_std_mm=stage_std_mm, table_std_deg=table_std_deg)
+        out["P"].append(P)
+        out["cov"].append(own + common)
+        out["common"].append(common)
+        out["view"].append(_view_dirs(scan, p["theta_deg"]))
+        out["mod"].append(np.full(len(P), k, np.uint8))
+        out["index"].append(np.asarray(p["index"], np.int32))
+        out["gap"].append(np.full(len(P), level_gap_mm(P[:, 2], np.asarray(p["level"]))))
+    if not out["P"]:
+        return {"P": np.zeros((0, 3)), "cov": np.zeros((0, 3, 3)),
+                "common": np.zeros((0, 3, 3)), "view": np.zeros((0, 3)),
+                "mod": np.zeros(0, np.uint8), "index": np.zeros(0, np.int32),
+                "gap": np.zeros(0)}
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def waveform_probabilities(scan: ScanData, classifier: tuple[FusedModel, dict],
+                           model_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Object-frame places (k, 3, mm) of the scan's waveforms the classifier can use (the OA
+    point, else the US point) and its probabilities for them (k, classes)."""
+    model, prov = classifier
+    ds = scan_dataset(scan, int(prov.get("window", 128)))
+    check_provenance(prov, model_path, ds.fs_hz, ds.window)
+    pts = scan_points(scan)
+    place = np.full((scan.n_points, 3), np.nan)
+    row_of = {int(i): r for r, i in enumerate(scan.points["point_index"])}
+    for m in reversed(MODS):  # OA last: it wins where both are there
+        for i, P in zip(pts[m]["index"], pts[m]["P"]):
+            place[row_of[int(i)]] = P
+    rows = ds.usable(model.modalities)
+    rows = rows[np.all(np.isfinite(place[rows]), axis=1)]
+    if not len(rows):
+        return np.zeros((0, 3)), np.zeros((0, len(model.classes)))
+    return place[rows], np.asarray(model.predict_proba(ds.subset(rows)), float)
+
+
+def support_radius_mm(P_mm: np.ndarray, level_gap_mm: float = 0.0, lo_mm: float = 1.5,
+                      hi_mm: float = 5.0) -> float:
+    """The local fits' and the outlier rule's neighbourhood radius (mm, within lo..hi): the
+    radius within which the median point has SUPPORT_POINTS others, and at least LEVELS_SPANNED
+    / 2 level gaps, so that a quadratic fit sees several levels (a turntable scan's points lie
+    on rows of constant height: dense along a row, level_gap_mm apart across). Not from the
+    nearest neighbour: a waveform's OA and US points lie a fraction of a mm apart."""
+    k = min(SUPPORT_POINTS, len(P_mm) - 1)
+    if k < 1:
+        return hi_mm
+    d, _ = cKDTree(P_mm).query(P_mm[:: max(1, len(P_mm) // 5000)], k=k + 1)
+    return float(np.clip(max(np.median(d[:, -1]), LEVELS_SPANNED / 2 * level_gap_mm),
+                         lo_mm, hi_mm))
+
+
+def level_gap_mm(z_mm: np.ndarray, level: np.ndarray) -> float:
+    """The median height step (mm) between a scan's neighbouring levels (0: one level)."""
+    heights = np.sort([np.median(z_mm[level == k]) for k in np.unique(level)])
+    steps = np.diff(heights)
+    steps = steps[steps > 0.05]
+    return float(np.median(steps)) if len(steps) else 0.0
+
+
+def vertex_materials(vertices_mm: np.ndarray, places_mm: np.ndarray, prob: np.ndarray,
+                     radius_mm: float = MATERIAL_RADIUS_MM) -> np.ndarray:
+    """Per vertex the mean probabilities (V, classes) of the waveforms placed within
+    radius_mm of it; NaN rows where none is."""
+    out = np.full((len(vertices_mm), prob.shape[1]), np.nan, np.float32)
+    if not len(places_mm):
+        return out
+    near = cKDTree(places_mm).query_ball_point(vertices_mm, radius_mm)
+    for i, idx in enumerate(near):
+        if idx:
+            out[i] = prob[idx].mean(axis=0)
+    return out
+
+
+def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None = None,
+                       spacing_mm: float = 1.0, modalities: tuple[str, ...] = MODS,
+                       progress: Progress | None = None) -> ObjectModel:
+    """The model of one object from its scans in db_dir (not written yet: store.write_model).
+    classifier: a `dmdsm classify train` model file giving the vertices' materials (none:
+    the model carries no materials); modalities: the points' modalities the surface is built
+    from (the bench builds one per modality). Raises ModelError with one line on what to do."""
+    say = progress or (lambda _s: None)
+    check_object_id(object_id)
+    rows, left = object_scans(Path(db_dir), object_id)
+    if not rows:
+        raise ModelError(f"no finished scan of object {object_id!r} in {db_dir}"
+                         + (f" ({'; '.join(left)})" if left else "")
+                         + ": scan it first (dmdsm scan)")
+    clf = None
+    if classifier is not None:
+        try:
+            clf = load_model(Path(classifier))
+        except ClassifyError as e:
+            raise ModelError(str(e)) from None
+    t0 = time.monotonic()
+    parts, places, probs, sources = [], [], [], []
+    for k, row in enumerate(rows):
+        try:
+            scan = read_scan(Path(row["path"]), waveforms=clf is not None)
+        except ScanFileError as e:
+            raise ModelError(f"scan {row['scan_id']}: {e}") from None
+        one = scan_point_set(scan)
+        one["scan"] = np.full(len(one["P"]), k, np.int32)
+        parts.append(one)
+        if clf is not None:
+            try:
+                where, p = waveform_probabilities(scan, clf, Path(classifier))
+            except ClassifyError as e:
+                raise ModelError(f"scan {row['scan_id']}: {e}") from None
+            places.append(where)
+            probs.append(p)
+        sources.append({"scan_id": row["scan_id"], "content_hash": row["content_hash"],
+                        "material": row.get("material", "")})
+        say(f"read scan {row['scan_id']}: {len(one['P'])} points")
+    pts = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    keep = np.isin(pts["mod"], [MODS.index(m) for m in modalities])
+    pts = {k: v[keep] for k, v in pts.items()}
+    if len(pts["P"]) < 50:
+        raise ModelError(f"object {object_id!r} has {len(pts['P'])} points in its scans: too "
+                         f"few for a surface; scan it (more levels or angles) first")
+    radius = support_radius_mm(pts["P"], float(np.median(pts["gap"])))
+    good, why = outliers(pts["P"], pts["cov"], radius_mm=radius)
+    bad = ~good
+    say(f"{int(bad.sum())} of {len(bad)} points are outliers ("
+        + ", ".join(f"{REASONS[int(c)]} {int((why == c).sum())}" for c in np.unique(why[bad]))
+        + ")" if bad.any() else "no outliers")
+    surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
+                         spacing_mm=spacing_mm, support_radius_mm=radius,
+                         cov_common=pts["common"][good])
+    classes: list[str] = []
+    prob = np.zeros((len(surf.vertices_mm), 0), np.float32)
+    if clf is not None:
+        classes = [str(c) for c in clf[0].classes]
+        prob = vertex_materials(surf.vertices_mm, np.concatenate(places),
+                                np.concatenate(probs))
+    model = ObjectModel(
+        object_id=object_id, version=0,
+        created=utc_now(), sources=sources,
+        params={"spacing_mm": spacing_mm, "material_radius_mm": MATERIAL_RADIUS_MM,
+                "stage_std_mm": STAGE_STD_MM, "table_std_deg": TABLE_STD_DEG,
+                "classifier": str(classifier) if classifier else "",
+                "modalities": list(modalities), **surf.params},
+        summary={}, points_mm=pts["P"], points_cov_mm2=pts["cov"],
+        points_modality=pts["mod"], points_scan=pts["scan"], points_index=pts["index"],
+        points_outlier=bad, vertices_mm=surf.vertices_mm, faces=surf.faces,
+        normals=surf.normals, sigma_mm=surf.sigma_mm, support=surf.support,
+        supported=surf.supported, classes=classes, material_prob=prob)
+    model.summary = model_summary(model, left, time.monotonic() - t0)
+    return model
+
+
+def model_summary(model: ObjectModel, left: list[str], build_s: float) -> dict:
+    """The figures a listing shows: points, outliers, vertices, supported share, median
+    sigma (mm), the material of the supported vertices, scans left out, build time (s)."""
+    sup = model.supported
+    mat = model.material
+    named = mat[sup & (mat != "")] if len(mat) else np.array([], str)
+    kinds, counts = np.unique(named, return_counts=True) if len(named) else ([], [])
+    return {"points": int(len(model.points_mm)), "outliers": int(model.points_outlier.sum()),
+            "vertices": int(len(model.vertices_mm)), "supported_share": float(sup.mean())
+            if len(sup) else 0.0,
+            "sigma_median_mm": float(np.nanmedian(model.sigma_mm[sup])) if sup.any() else None,
+            "materials": {str(k): int(c) for k, c in zip(kinds, counts)},
+            "left_out": left, "build_s": round(build_s, 2)}

@@ -1,0 +1,180 @@
+"""`dmdsm model build|export|show`: an object's scans fused into a model that lies on the true
+surface within its sigma, marks what no scan saw, goes stale when a scan changes, exports to
+PLY/GLB/OBJ that trimesh reads, and refuses bad input in one line."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+import trimesh
+
+from dmdsm.host.entry import main
+from dmdsm.host.files import file_hash
+from dmdsm.host.model.build import build_object_model, vertex_materials
+from dmdsm.host.model.export import ply_bytes
+from dmdsm.host.model.store import load_object_model, staleness, write_model
+from dmdsm.host.ranging.calibrate import distance_std_mm
+from dmdsm.host.scan.catalogue import connect, record
+from dmdsm.host.scan.scanfile import PHASES, ScanWriter
+from dmdsm.sim.data.dataset import true_setup
+from dmdsm.sim.physics.signals import SensorModel
+
+RADIUS_MM = 25.0
+X_R = np.array([150.0, 200.0, 10.0])
+V = np.array([0.0, 1.0, 0.0])  # the beam, along +y
+N = np.array([0.0, 0.0, 1.0])  # the table's axis
+BAND_MM = (10.0, 30.0)         # the heights scanned (object frame z)
+STD_MM = {"oa": 0.06, "us": 0.15}  # the distances' noise (the paper's figures)
+
+
+def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None):
+    """A finished scan of a cylinder of RADIUS_MM about the table's axis: per table angle and
+    level a line across it, both modalities' distances with the noise their SNR gives."""
+    setup = true_setup(SensorModel())
+    rng = np.random.default_rng(seed)
+    path = db / "scans" / f"{scan_id}.h5"
+    cal = {"v": V.tolist(), "n": N.tolist(), "X_R": X_R.tolist(),
+           "v_std": [1e-4, 1e-5, 1e-4], "n_std": [1e-4, 1e-4, 1e-5], "X_R_std": [0.01, 0.01, 0.0]}
+    w = ScanWriter.create(path, scan_id=scan_id, plan_text="", plan_hash="h", n_samples=8,
+                          sensor={"board": "test"}, calibration=cal, calibration_toml="",
+                          ranging_json=setup.to_json(),
+                          sample={"name": "can", "material": "aluminium", "notes": ""},
+                          program_version="test")
+    snr = {m: snr_for(setup, m, STD_MM[m]) for m in ("oa", "us")}
+    levels = np.asarray(levels_mm if levels_mm is not None else
+                        np.arange(BAND_MM[0], BAND_MM[1] + 1e-9, 2.0))
+    x = np.arange(-20.0, 20.01, 0.7)
+    theta, z, x = (a.ravel() for a in np.meshgrid(np.arange(0.0, 360.0, step_deg), levels, x,
+                                                  indexing="ij"))
+    k = len(x)
+    S = X_R + np.column_stack([x, np.full(k, -60.0), z])
+    d = 60.0 - np.sqrt(RADIUS_MM ** 2 - x ** 2)
+    w.append_many(np.zeros((k, 8), np.uint16), stage_position_mm=S, theta_deg=theta,
+                  level=np.searchsorted(levels, z), column=np.zeros(k, int),
+                  angle_index=(theta // step_deg).astype(int), received=np.ones(k, bool),
+                  attempts=np.ones(k, int), n_average=np.full(k, 16), timestamp=np.arange(k),
+                  trigger_phase=np.zeros(k, int),
+                  distance_oa_mm=d + rng.normal(0, STD_MM["oa"], k),
+                  distance_us_mm=d + rng.normal(0, STD_MM["us"], k),
+                  snr_oa_db=np.full(k, snr["oa"]), snr_us_db=np.full(k, snr["us"]),
+                  phase_time_s=np.zeros((k, len(PHASES))), host_time=np.zeros(k),
+                  point_index=np.arange(k))
+    i = k
+    w.close("complete")
+    record(db, scan_id, n_planned=i, content_hash=file_hash(path))
+    return path
+
+
+def snr_for(setup, modality, std_mm):
+    """The SNR (dB) at which the setup's distance std is std_mm (bisection)."""
+    lo, hi = -20.0, 120.0
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if distance_std_mm(setup, modality, mid) > std_mm else (lo, mid)
+    assert abs(distance_std_mm(setup, modality, hi) - std_mm) < 1e-3 * std_mm
+    return hi
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    db = tmp_path_factory.mktemp("db")
+    connect(db, create=True).close()
+    cylinder_scan(db)
+    model = build_object_model(db, "can")
+    write_model(db, model)
+    return db, model
+
+
+def test_the_model_lies_on_the_true_surface_within_its_sigma(built):
+    _, m = built
+    sup = m.supported
+    r = np.hypot(m.vertices_mm[sup, 0], m.vertices_mm[sup, 1])
+    err = r - RADIUS_MM
+    assert sup.sum() > 2000
+    assert np.abs(err).mean() < 0.03          # the points' own std is 0.03-0.1 mm
+    z = err / m.sigma_mm[sup]
+    assert 0.6 < np.sqrt(np.mean(z ** 2)) < 1.5
+    assert m.summary["outliers"] < 0.02 * m.summary["points"]
+    # the closed surface's caps were never scanned: unsupported, sigma NaN, not invented
+    top = m.vertices_mm[:, 2] > BAND_MM[1] + 5
+    assert top.any() and not m.supported[top].any() and np.isnan(m.sigma_mm[top]).all()
+    assert trimesh.Trimesh(m.vertices_mm, m.faces, process=False).is_watertight
+
+
+def test_a_gross_error_is_removed_as_an_outlier(tmp_path):
+    db = tmp_path
+    connect(db, create=True).close()
+    path = cylinder_scan(db, step_deg=30.0)
+    with h5py.File(path, "r+") as f:
+        d = f["/entry/data/distance_oa_mm"]
+        d[100:105] = d[100:105] - 3.0  # five points 3 mm in front of the surface
+    record(db, "can-a", n_planned=1, content_hash=file_hash(path))
+    m = build_object_model(db, "can")
+    idx = m.points_index[(m.points_modality == 0)]
+    flagged = m.points_outlier[(m.points_modality == 0)]
+    assert flagged[np.isin(idx, range(100, 105))].all()
+    assert flagged.sum() <= 5 + 0.01 * len(flagged)
+
+
+def test_vertex_materials_average_the_waveforms_near_each_vertex():
+    places = np.array([[0.0, 0, 0], [0.5, 0, 0], [10.0, 0, 0]])
+    prob = np.array([[1.0, 0.0], [0.0, 1.0], [0.2, 0.8]])
+    out = vertex_materials(np.array([[0.2, 0, 0], [10.0, 0.1, 0], [50.0, 0, 0]]), places, prob)
+    assert np.allclose(out[0], [0.5, 0.5]) and np.allclose(out[1], [0.2, 0.8])
+    assert np.isnan(out[2]).all()  # no waveform near: no material, not a guess
+
+
+def test_a_changed_scan_makes_the_model_stale_and_a_new_scan_too(tmp_path):
+    connect(tmp_path, create=True).close()
+    path = cylinder_scan(tmp_path, step_deg=30.0)
+    write_model(tmp_path, build_object_model(tmp_path, "can"))
+    assert staleness(tmp_path, load_object_model(tmp_path, "can")) == ["ok"]
+    with h5py.File(path, "r+") as f:
+        f["/entry"].attrs["notes_edit"] = "x"
+    assert any("changed" in s for s in staleness(tmp_path, load_object_model(tmp_path, "can")))
+
+
+def test_the_commands_build_show_and_export(built, tmp_path, capsys):
+    db, _ = built
+    assert main(["model", "build", "can", "--db", str(db), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["version"] == 2 and out["vertices"] > 0
+    for fmt in ("ply", "glb", "obj"):
+        f = tmp_path / f"can.{fmt}"
+        assert main(["model", "export", "can", "--db", str(db), "-o", str(f)]) == 0
+        mesh = trimesh.load(f, force="mesh")
+        assert len(mesh.vertices) == out["vertices"]
+    html = tmp_path / "can.html"
+    assert main(["model", "show", "can", "--db", str(db), "--version", "1", "--html",
+                 str(html)]) == 0
+    text = html.read_text()
+    assert "<html" in text.lower() and "can" in text
+    shown = capsys.readouterr().out
+    assert "status: stale" in shown or "status: ok" not in shown  # v1 is older than v2's scans?
+
+
+def test_the_ply_carries_sigma_support_and_material_per_vertex(built):
+    _, m = built
+    data = ply_bytes(m)
+    head = data[:data.index(b"end_header\n")].decode()
+    for prop in ("sigma_mm", "support", "supported", "material"):
+        assert f" {prop}\n" in head
+    mesh = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="ply", process=False)
+    sig = np.asarray(mesh.metadata["_ply_raw"]["vertex"]["data"]["sigma_mm"], float)
+    assert np.allclose(sig, m.sigma_mm.astype(np.float32), equal_nan=True)
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["model", "build", "../etc", "--db", "{db}"], "object id"),
+    (["model", "build", "nothing", "--db", "{db}"], "no finished scan"),
+    (["model", "build", "can", "--db", "{db}", "--spacing-mm", "0"], "--spacing-mm"),
+    (["model", "show", "nothing", "--db", "{db}"], "no model"),
+    (["model", "export", "can", "--db", "{db}", "-o", "{tmp}/x.stl"], "unknown model format"),
+])
+def test_bad_input_is_one_line(built, tmp_path, capsys, argv, says):
+    db, _ = built
+    code = main([a.format(db=db, tmp=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and says in err and len(err.strip().splitlines()) == 1
+    assert "Traceback" not in err

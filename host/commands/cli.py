@@ -19,7 +19,7 @@ from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
 from ..version import __version__
-from . import calibrate, classify, db, devices, flash, plan, range, scan, sim
+from . import calibrate, campaign, classify, db, devices, flash, plan, range, scan, sim
 from .errors import CliError, Terminated, terminate
 
 AddParser = Callable[[argparse._SubParsersAction], None]
@@ -41,6 +41,7 @@ def build_parser(extra: Iterable[AddParser] = ()) -> argparse.ArgumentParser:
     calibrate.add_parser(sub)
     plan.add_parser(sub)
     scan.add_parser(sub)
+    campaign.add_parser(sub)
     db.add_parsers(sub)
     classify.add_parser(sub)
     for add_parser in extra:

@@ -19,7 +19,7 @@ from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
 from ..version import __version__
-from . import calibrate, campaign, classify, db, devices, flash, plan, range, scan, sim
+from . import calibrate, campaign, classify, db, devices, flash, model, plan, range, scan, sim
 from .errors import CliError, Terminated, terminate
 
 AddParser = Callable[[argparse._SubParsersAction], None]
@@ -43,6 +43,7 @@ def build_parser(extra: Iterable[AddParser] = ()) -> argparse.ArgumentParser:
     scan.add_parser(sub)
     campaign.add_parser(sub)
     db.add_parsers(sub)
+    model.add_parser(sub)
     classify.add_parser(sub)
     for add_parser in extra:
         add_parser(sub)

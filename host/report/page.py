@@ -42,6 +42,7 @@ class Section:
     values: dict = field(default_factory=dict)  # the figures, for summary.json and tests
     checks: list[Check] = field(default_factory=list)
     state: str = ""  # "" (ran to its end), "interrupted" or "not run"
+    views: list[str] = field(default_factory=list)  # 3D model blocks (report.viewer)
 
     def table(self, header: list[str], rows: list[list[object]]) -> None:
         """Add a table (cells formatted with str)."""
@@ -110,9 +111,16 @@ def _cls(s: Section) -> str:
 
 
 def html_page(title: str, sections: list[Section], interrupted: str = "") -> str:
-    """The report as one HTML file with the figures inside it."""
+    """The report as one HTML file with the figures and the 3D model views inside it (no
+    network needed to open it)."""
     e = html.escape
+    head = ""
+    if any(s.views for s in sections):
+        from .viewer import viewer_head
+
+        head = viewer_head()
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title>",
+             head,
              "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;"
              "line-height:1.4}table{border-collapse:collapse;margin:0.5em 0}"
              "td,th{border:1px solid #bbb;padding:3px 8px;text-align:left}"
@@ -141,5 +149,6 @@ def html_page(title: str, sections: list[Section], interrupted: str = "") -> str
                 data = base64.b64encode(path.read_bytes()).decode()
                 parts.append(f"<figure><img alt='{e(caption)}' src='data:image/png;base64,"
                              f"{data}'><figcaption>{e(caption)}</figcaption></figure>")
+        parts += s.views
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -358,9 +358,12 @@ class Run:
             if unknown:
                 raise CliError(f"the emulator has no scene {shown(unknown[0])!r} (give the "
                                f"object a scene = NAME from `dmdsm sim --list-scenes`)")
-        self.sensor = SensorClient(sensor_port)
-        self.stack.callback(self.sensor.close)
-        self.stage = self.stack.enter_context(StageClient(stage_port))
+        try:  # a port that does not open is the user's to fix (exit 2), as for `dmdsm scan`
+            self.sensor = SensorClient(sensor_port)
+            self.stack.callback(self.sensor.close)
+            self.stage = self.stack.enter_context(StageClient(stage_port))
+        except LinkError as e:
+            raise CliError(str(e)) from None
 
     def run_scan(self, plan: ScanPlan) -> ScanRun:
         from tqdm import tqdm
@@ -458,7 +461,7 @@ class Run:
             if k == 0:
                 print("  ".join("-" * w for w in width))
         for r in self.rows:
-            if r.reason and r.status in ("failed", "skipped"):
+            if r.reason and r.status != "not reached":
                 print(f"{shown(r.object_id)}: {r.status}: {r.reason}")
 
 

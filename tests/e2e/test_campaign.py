@@ -5,6 +5,7 @@ done before and scanning nothing; the operator's prompt (s, q) where no emulator
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -20,7 +21,8 @@ from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.sim.servers.emulator import Emulator
 from dmdsm.sim.servers.runner import SimConfig
 
-# one level each (a narrow band: the first look scans 3 levels about it), the can first
+# one level each (a narrow band: the first look scans 3 levels about it), the can first; the
+# block declared steel, so that the database holds two materials to train a classifier on
 CAMPAIGN = """
 [campaign]
 mode = "auto"
@@ -36,7 +38,7 @@ levels_mm = [20.0]
 
 [[object]]
 id = "aluminium_block"
-material = "aluminium"
+material = "steel"
 size_mm = [51.0, 31.0, 41.0]
 levels_mm = [20.0]
 """
@@ -89,6 +91,7 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
             "aluminium_block" in out, out
         assert "campaign stopped at object 2 of 2 (aluminium_block)" in err, err[-2000:]
         assert "run the same command to resume there" in err
+        times.update(re.findall(r"^(\S+): done in (\d+) s", out, re.M))
         cut = points_in(block)
         assert cut >= 100
         assert (link / "scene").read_text().strip() == "aluminium_block"
@@ -103,6 +106,8 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
         assert r.returncode == 0, r.stderr[-2000:]
         assert "can: done before" in r.stdout and "mounted scene soda_can" not in r.stdout
         assert "aluminium_block: resuming aluminium_block-" in r.stdout, r.stdout
+        times.update({f"{k} (resumed)": v for k, v in
+                      re.findall(r"^(\S+): done in (\d+) s", r.stdout, re.M)})
         assert [o.name for o in emu.sim.truth_objects()] == ["aluminium_block"]
         whole = read_scan(next(block.parent.glob(block.name)), waveforms=False)
         assert whole.entry["status"] == "complete" and whole.n_points > cut
@@ -129,6 +134,23 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
         assert stamps == {p: p.stat().st_mtime_ns
                           for p in (tmp_path / "db" / "scans").glob("*.h5")}
 
+        # a classifier (trained on these two scans) named in the file, beside it: the
+        # verdicts of objects done before
+        r = subprocess.run([sys.executable, "-m", "dmdsm.host", "classify", "train", "--db",
+                            str(tmp_path / "db"), "-o", str(tmp_path / "clf.model")],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        (tmp_path / "with_classifier.toml").write_text(
+            '[campaign]\nclassifier = "clf.model"\n' + CAMPAIGN.replace("[campaign]\n", ""))
+        r = subprocess.run(campaign_cmd(tmp_path, "x", "y", toml="with_classifier.toml"),
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        rows = {line.split()[0]: line for line in r.stdout.splitlines()
+                if line.startswith(("can ", "aluminium_block "))}
+        assert " right" in rows["can"] and " right" in rows["aluminium_block"], r.stdout
+        assert "aluminium" in rows["can"].split("done before")[1]
+        assert "steel" in rows["aluminium_block"].split("done before")[1]
+
         # where no emulator mounts (the pty itself), the operator is asked: s skips, q stops
         (tmp_path / "more.toml").write_text(
             CAMPAIGN + '\n[[object]]\nid = "cup"\nmaterial = "paper"\n'
@@ -146,4 +168,4 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
         assert "campaign stopped before object 4 of 4 (mug): q typed" in r.stdout
         assert "0 of 4 objects failed, 2 not scanned" in r.stderr
         assert len(list((tmp_path / "db" / "scans").glob("*.h5"))) == 2
-    print("\n" + "\n".join(f"{k}: {v:.0f} s" for k, v in times.items()))
+    print("\n" + "\n".join(f"{k}: {float(v):.0f} s" for k, v in times.items()))

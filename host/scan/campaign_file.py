@@ -245,6 +245,14 @@ def _number(v: object, what: str, example: str) -> float:
     return x
 
 
+def _reach() -> float:
+    """The machine's longest travel (mm): no object is larger."""
+    from dmdsm.marlin_patch import load_machine
+
+    m = load_machine()
+    return max(hi - lo for lo, hi in zip(m.min_pos[:3], m.max_pos[:3]))
+
+
 def _object(raw: dict, where: str) -> CampaignObject:
     """One [[object]] table, checked key by key (before the plan's checks)."""
     if "id" in raw:
@@ -274,6 +282,12 @@ def _object(raw: dict, where: str) -> CampaignObject:
                             f"{one_line(repr(size), 40)})")
     size_mm = tuple(_number(x, f"{where}: size_mm[{k}]", "size_mm = [66.0, 66.0, 122.0]")
                     for k, x in enumerate(size))
+    reach = _reach()
+    for k, x in enumerate(size_mm):  # before the plan: a huge height makes a huge plan
+        if x > reach:
+            raise CampaignError(f"{where}: size_mm[{k}] = {x:.6g} mm is more than the "
+                                f"machine's longest travel ({reach:g} mm): give the object's "
+                                f"size in mm")
     round_ = raw.get("round", False)
     if not isinstance(round_, bool):
         raise CampaignError(f"{where}: round must be true or false, without quotes (got "

@@ -156,17 +156,18 @@ A_FEEDS = (1800, 3600, 5400)             # deg/min, moves of A alone
 @dataclass
 class Tolerance:
     """How far the emulator's motion may be from the real Marlin's, from what the real one
-    under simavr does that the emulator leaves out (its stepper ISR): Marlin's first step of
-    a sequence from rest comes one step period of the entry rate after the block starts,
-    about 10 ms (measured 10 to 19 ms later than the emulator's); each step falls on a
-    timer tick, a ramp takes its rate from the step before, and the step period comes from
-    a table with two or four steps per interrupt at high rates, which makes a block up to
-    about 4 % shorter or longer (measured: 3.5 % shorter at 12000 steps/s). So: the first
-    step within start_s; each block's time, and each block's end counted from the first
-    step, within abs_s + rel x that time; positions at equal time (counted from the first
-    step) within pos (mm, deg) + what the allowed time difference moves at the axis's top
-    speed. A planner that ignores junction deviation, accelerates 30 % off or plans no
-    look-ahead is far outside (test_motion_differential.py)."""
+    under simavr does that the emulator leaves out (its stepper ISR). Marlin takes a block's
+    first step one step period of its entry rate after the block starts (the emulator at the
+    start), so from rest its first step comes 10 to 18 ms later (30 sequences). Each step
+    falls on a timer tick, a ramp takes its rate from the step before, and at high rates the
+    period comes from a table with two or four steps per interrupt, which makes a block up
+    to about 4 % shorter or longer (measured: 3.5 % shorter at 12000 steps/s). So: the first
+    step within start_s; each block's time (from the last step of the block before to its
+    own last step) and each block's end (from the first step) within abs_s + rel x that
+    time; positions at equal time from the first step within pos (mm, deg) + what the
+    allowed time difference moves at the axis's top speed in the sequence. A planner with
+    junction deviation off, 30 % less acceleration or one block of look-ahead is far
+    outside (test_motion_differential.py)."""
 
     start_s: float = 0.020
     abs_s: float = 0.008

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from dmdsm.host.model.fuse import outliers
 from dmdsm.host.model.surface import SurfaceModel, build_surface, point_normals
 
 OA, US = 0.08, 0.18    # the distance's std along the beam (mm)
@@ -188,3 +189,43 @@ def test_20k_points_build_in_seconds():
     m = build_surface(Q, cov, vd)
     assert time.perf_counter() - t < 15.0    # a few seconds on 2 idle cores
     assert m.supported.all()
+
+
+def test_scan_rows_a_level_apart():
+    """A scan's sampling: rows of points 0.25 mm apart, levels 2 mm apart, open top and
+    bottom. The support radius spans levels, the side is supported and within its sigma, and
+    the outlier rule keeps every point."""
+    rng = np.random.default_rng(6)
+    R = 20.0
+    th, z = np.meshgrid(np.arange(0, 2 * np.pi, 0.25 / R), np.arange(1.0, 40.0, 2.0))
+    th, z = th.ravel(), z.ravel()
+    nr = np.column_stack([np.cos(th), np.sin(th), 0 * th])
+    P = R * nr + np.column_stack([0 * z, 0 * z, z])
+    Q, cov, vd = measure(P, nr, OA, rng)
+    keep, _ = outliers(Q, cov)
+    assert keep.all()
+    m = build_surface(Q, cov, vd)
+    check_mesh(m)
+    assert m.params["support_radius_mm"] > 2.0
+    side = np.abs(m.vertices_mm[:, 2] - 20) < 16
+    assert m.supported[side].all()
+    e = np.hypot(m.vertices_mm[side, 0], m.vertices_mm[side, 1]) - R
+    assert 0.8 < np.sqrt(np.mean((e / m.sigma_mm[side]) ** 2)) < 1.25
+
+
+def test_common_errors_are_not_averaged_down():
+    """Twelve scans of a sphere, each shifted as a whole (a calibration error, 0.05 mm per
+    axis) on top of the point noise: with that part given as cov_common the vertices hold
+    their sigma; given as independent noise, the fit averages it down and sigma is too small."""
+    rng = np.random.default_rng(7)
+    P, nr, dist = sphere(1.5, R=10.0)
+    with_c, without = [], []
+    for _ in range(12):
+        Q, cov, vd = measure(P, nr, OA, rng)
+        Q = Q + rng.normal(0, 0.05, 3)
+        common = np.tile(0.05 ** 2 * np.eye(3), (len(P), 1, 1))
+        for c, out in ((common, with_c), (None, without)):
+            m = build_surface(Q, cov + common, vd, cov_common=c)
+            out.append(dist(m.vertices_mm) / m.sigma_mm)
+    assert 0.8 < np.sqrt(np.mean(np.concatenate(with_c) ** 2)) < 1.25
+    assert np.sqrt(np.mean(np.concatenate(without) ** 2)) > 1.3

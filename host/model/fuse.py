@@ -119,8 +119,10 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     normal (m, 3), the fitted surface's unit normal there; var (m,) mm^2, the offset's variance
     from the points' covariances (sandwich, weights fixed); chi2 (m,), the weighted residuals'
     reduced chi-square over their propagated variances, with n_eff (m,) the weights' effective
-    number of points (sum w)^2 / sum w^2; rejected (m,), the weight fraction the
-    robust fit dropped; centred (m,), the weighted centroid's tangential offset over h_mm."""
+    number of points (sum w)^2 / sum w^2, and chi2_robust (m,) the same from the residuals'
+    MAD over their stds (blind to the points the robust fit dropped); rejected (m,), the weight
+    fraction the robust fit dropped; centred (m,), the weighted centroid's tangential offset
+    over h_mm."""
     m, K = valid.shape
     d = Q - x[:, None, :]
     w0 = valid * np.exp(-0.5 * ((d * d).sum(axis=2) / h_mm ** 2))
@@ -157,13 +159,44 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     n_eff = sw_f ** 2 / np.maximum((w * w).sum(axis=1), 1e-300)
     chi2 = (np.einsum("mk,mk->m", w, r * r / s2) / np.maximum(sw_f, 1e-300)
             * n_eff / np.maximum(n_eff - 6, 1.0))
+    chi2_robust = ((1.4826 * _median(np.abs(r) / np.sqrt(s2), valid)) ** 2
+                   * n_eff / np.maximum(n_eff - 6, 1.0))
     g = np.column_stack([-a[:, 1], -a[:, 2], np.full(m, h_mm)])
     g /= np.linalg.norm(g, axis=1)[:, None]
     normal = g[:, :1] * t1 + g[:, 1:2] * t2 + g[:, 2:] * nrm
     cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm
     return {"offset": a[:, 0], "normal": normal, "frame_normal": nrm, "var": var,
-            "chi2": chi2, "n_eff": n_eff, "rejected": 1 - sw_f / sw, "centred": cen,
-            "s2": s2, "w": w}
+            "chi2": chi2, "chi2_robust": chi2_robust, "n_eff": n_eff,
+            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w}
+
+
+def neighbourhood_radius(P_mm: np.ndarray, target: int = 20, min_mm: float = 1.0,
+                         max_mm: float = 8.0, sample: int = 400, rows: float = 2.2) -> float:
+    """A local fit's radius (mm, within min_mm..max_mm) from the points' density: the smallest
+    r (steps of 10 %) within which the median point (of a fixed subsample) has >= target other
+    points spread over the surface (second PCA eigenvalue >= 0.25 of the first), and at least
+    `rows` times the median largest gap between the neighbours' projections on either in-plane
+    axis. Dense rows a level apart have that gap = the level spacing, so the radius spans about
+    five levels (a quadratic needs several); on evenly spread points the gap is small."""
+    P = np.asarray(P_mm, float)
+    if len(P) < 3:
+        return max_mm
+    tree = cKDTree(P)
+    sub = P[np.random.default_rng(0).choice(len(P), min(sample, len(P)), replace=False)]
+    r = min_mm
+    while r < max_mm:
+        if np.median(tree.query_ball_point(sub, r, return_length=True)) - 1 >= target:
+            ratio, gap = [], []
+            for nb in tree.query_ball_point(sub, r):
+                Q = P[nb] - P[nb].mean(axis=0)
+                ev, vec = np.linalg.eigh(Q.T @ Q)
+                ratio.append(ev[1] / max(ev[2], 1e-300))
+                gap.append(max(np.diff(np.sort(Q @ vec[:, i])).max(initial=0.0)
+                               for i in (1, 2)))
+            if np.median(ratio) >= 0.25:
+                return float(min(max(r, rows * np.median(gap)), max_mm))
+        r *= 1.1
+    return max_mm
 
 
 def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
@@ -173,8 +206,8 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
     """Which points to keep, and why: (keep (k,) bool, reason (k,) int8, codes in REASONS).
 
     The rule: a point's neighbours within radius_mm (at most max_neighbours nearest, itself
-    left out; radius_mm defaults to 2.5 times the median distance to the 10th nearest point,
-    at least 1.5 mm: about 4.5 spacings, so a scan's open rim still has ~30) get a robust
+    left out; radius_mm defaults to neighbourhood_radius for 60 points, so a scan's open rim
+    still has ~30) get a robust
     quadratic fit (local_fit, Gaussian weight scale radius_mm). The point is OFF_SURFACE when
     its distance e along the fit's normal exceeds k_sigma * s, s^2 = n^T cov n + the fit's
     variance at it + the misfit: with chi2 the fit's reduced chi-square and s2 its points' mean
@@ -197,8 +230,7 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
         return np.zeros(0, bool), reason
     tree = cKDTree(P)
     if radius_mm is None:
-        k10 = min(11, k)
-        radius_mm = max(1.5, 2.5 * float(np.median(tree.query(P, k=k10, workers=-1)[0][:, -1])))
+        radius_mm = neighbourhood_radius(P, target=60, min_mm=1.5)
     kq = min(max_neighbours + 1, k)
     dist, idx = tree.query(P, k=kq, distance_upper_bound=radius_mm, workers=-1)
     dist, idx = dist.reshape(k, kq), idx.reshape(k, kq)

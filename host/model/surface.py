@@ -12,12 +12,16 @@ grid only gives topology and a first position (about a voxel): each vertex is th
 its local normal onto a robust weighted quadratic fit of the points near it (MLS, fuse.local_fit)
 - a quadratic, not a plane, so a radius of 15 mm is followed to a few um over the support - and
 its sigma is that fit's height std propagated from the points' covariances (n^T Sigma n per
-point, sandwich over the fit's weights), inflated by the fit's reduced chi-square where the
-residuals exceed the covariances (the model or the noise is worse than stated), plus the common
-(calibration) part, which a local fit cannot average down. Vertices with too few points near
-them, or with all their points on one side (a hole's rim), are unsupported: not moved, sigma
-NaN. Poisson reconstruction would smooth more but moves every vertex by a global solve whose
-error is hard to state per vertex; the local fit's error is explicit, which is the point here.
+point, sandwich over the fit's weights), inflated by the fit's robust reduced chi-square
+(from the residuals' MAD, so a face the robust fit rightly ignored at an edge does not count)
+where the residuals significantly exceed the covariances (the model or the noise is worse
+than stated), plus the common (calibration) part, which a local fit cannot average down.
+Vertices with too few points near them, or with all their points on one side (a hole's rim),
+are unsupported: not moved, sigma NaN. The support radius comes from the points' density
+(fuse.neighbourhood_radius), so rows of dense points a level apart get a radius spanning
+levels, and the points' normals use all points within it. Poisson reconstruction would smooth
+more but moves every vertex by a global solve whose error is hard to state per vertex; the
+local fit's error is explicit, which is the point here.
 """
 
 from __future__ import annotations
@@ -31,10 +35,11 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
-from .fuse import local_fit
+from .fuse import local_fit, neighbourhood_radius
 
 _CHUNK = 20000
 CHI2_SIGNIFICANT = 2.0   # inflate sigma by chi^2 where it exceeds 1 by this many of its stds
+MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
 
 
 @dataclass
@@ -50,16 +55,28 @@ class SurfaceModel:
     params: dict = field(default_factory=dict)
 
 
-def point_normals(P_mm: np.ndarray, view_dir: np.ndarray, k: int = 16) -> np.ndarray:
-    """Unit normals (k, 3) of points (mm): the PCA normal of each point's k nearest points,
-    signed to point toward view_dir (unit vectors from each point toward the sensor)."""
+def point_normals(P_mm: np.ndarray, view_dir: np.ndarray, k: int = 16,
+                  radius_mm: float = 0.0, max_k: int = 64) -> np.ndarray:
+    """Unit normals (k, 3) of points (mm): the PCA normal of each point's neighbours - its k
+    nearest, or with radius_mm all within it (at most max_k, at least k) - signed to point
+    toward view_dir (unit vectors from each point toward the sensor). A radius matters on
+    turntable data: many lines cross one level, so a point's k nearest can all lie on its own
+    row (collinear: no normal); within a radius spanning levels they do not."""
     P = np.asarray(P_mm, float)
-    k = min(k, len(P))
-    _, idx = cKDTree(P).query(P, k=k, workers=-1)
+    n = len(P)
+    kk = min(max(k, max_k if radius_mm > 0 else k), n)
+    dist, idx = cKDTree(P).query(P, k=kk, workers=-1)
+    dist, idx = dist.reshape(n, kk), idx.reshape(n, kk)
+    use = np.ones((n, kk), bool)
+    if radius_mm > 0:
+        use = dist <= radius_mm
+        use[:, :min(k, n)] = True  # at least the k nearest
     out = np.empty_like(P)
-    for lo in range(0, len(P), _CHUNK):
+    for lo in range(0, n, _CHUNK):
+        w = use[lo:lo + _CHUNK].astype(float)[:, :, None]
         Q = P[idx[lo:lo + _CHUNK]]
-        Q = Q - Q.mean(axis=1, keepdims=True)
+        Q = Q - (Q * w).sum(axis=1, keepdims=True) / w.sum(axis=1, keepdims=True)
+        Q = Q * w
         _, vec = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
         out[lo:lo + _CHUNK] = vec[:, :, 0]
     flip = np.einsum("ki,ki->k", out, np.asarray(view_dir, float)) < 0
@@ -136,11 +153,15 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     it) and view_dir (k, 3) unit vectors toward the sensor, in the object frame.
 
     spacing_mm: the voxel grid's spacing (coarsened to keep within max_voxels nodes).
-    support_radius_mm: the local fit's radius (Gaussian weight scale half of it); default 2.5
-    times the points' median nearest-neighbour spacing, within 1.5..5 mm. A vertex is supported
-    when it has >= min_support points within the radius, their weighted centroid lies within
-    max_offcentre weight scales of it along the surface (not a one-sided rim) and the fit moves
-    it less than half the radius; the others keep the grid's position and get sigma NaN.
+    support_radius_mm: the local fit's radius (Gaussian weight scale half of it); default
+    fuse.neighbourhood_radius for 18 points (about 2.4 spacings on an even grid), 1.5..6 mm.
+    A vertex is supported when it has >= min_support points within the radius, their weighted
+    centroid lies within max_offcentre weight scales of it along the surface (not a one-sided
+    rim) and the fit moves it less than half the radius; the others keep the grid's position
+    and get sigma NaN.
+    max_neighbours: the fit uses the nearest points within the radius, at least this many (if
+    there), up to 1.2 times the median support (at most 4 times this), so dense rows do not
+    crowd out the levels beside them.
     cov_common (k, 3, 3) mm^2: the part of cov shared by neighbouring points (fuse's
     covariance_parts' common part), added to sigma^2 as if fully correlated (not averaged).
     Raises ValueError for fewer than 20 finite points or shapes that do not match."""
@@ -158,22 +179,24 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     own = cov - common
     tree = cKDTree(P)
     gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
-    R = float(np.clip(2.5 * gap, 1.5, 5.0)) if support_radius_mm is None else support_radius_mm
+    R = (neighbourhood_radius(P, target=18, min_mm=1.5, max_mm=6.0)
+         if support_radius_mm is None else support_radius_mm)
     h = R / 2
-    normals_p = point_normals(P, vd)
+    normals_p = point_normals(P, vd, radius_mm=R)
     origin, shape, s = _grid(P, spacing_mm, R + 2 * spacing_mm, max_voxels)
     f = _hoppe_grid(P, normals_p, tree, origin, shape, s, h)
     mesh, dropped = _mesh(f, origin, s)
     V = np.array(mesh.vertices, float)
     ref = np.array(mesh.vertex_normals, float)
     support = np.asarray(tree.query_ball_point(V, R, return_length=True, workers=-1), np.int32)
-    Kq = min(max_neighbours, len(P))
+    Kq = int(min(max(max_neighbours, 1.2 * np.median(support)), 4 * max_neighbours, len(P)))
+    chunk = max(1000, 1_000_000 // Kq)
     sigma = np.full(len(V), np.nan)
     normals = ref.copy()
     supported = np.zeros(len(V), bool)
     offset = np.zeros(len(V))
-    for lo in range(0, len(V), _CHUNK):
-        sl = slice(lo, lo + _CHUNK)
+    for lo in range(0, len(V), chunk):
+        sl = slice(lo, lo + chunk)
         dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R, workers=-1)
         dist, idx = dist.reshape(-1, Kq), idx.reshape(-1, Kq)
         valid = np.isfinite(dist)
@@ -193,8 +216,9 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         offset[g] = r["offset"][good]
         V[g] += r["offset"][good, None] * nn[good]
         normals[g] = r["normal"][good]
-        chi2 = r["chi2"][good]
-        misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(2 / np.maximum(r["n_eff"][good] - 6, 1))
+        chi2 = r["chi2_robust"][good]
+        misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(
+            2 / (MAD_EFFICIENCY * np.maximum(r["n_eff"][good] - 6, 1)))
         sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good])
         supported[g] = True
     mesh = trimesh.Trimesh(V, mesh.faces, process=False)

@@ -39,6 +39,7 @@ from .fuse import local_fit, neighbourhood_radius
 
 _CHUNK = 20000
 CHI2_SIGNIFICANT = 2.0   # inflate sigma by chi^2 where it exceeds 1 by this many of its stds
+LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): a bias term
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
 
 
@@ -219,7 +220,14 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         chi2 = r["chi2_robust"][good]
         misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(
             2 / (MAD_EFFICIENCY * np.maximum(r["n_eff"][good] - 6, 1)))
-        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good])
+        wl = valid[sel] * np.exp(-0.5 * (np.where(valid[sel], dist[sel], 0) / (h / 2)) ** 2)
+        swl = wl.sum(axis=1)
+        chi2_l = (wl * r["r"] ** 2 / r["s2"]).sum(axis=1) / swl
+        ne_l = swl ** 2 / (wl * wl).sum(axis=1)
+        ms2_l = (wl * r["s2"]).sum(axis=1) / swl
+        bias2 = np.where(chi2_l > 1 + LOCAL_SIGNIFICANT * np.sqrt(2 / ne_l),
+                         (chi2_l - 1) * ms2_l, 0.0)[good]
+        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good] + bias2)
         supported[g] = True
     mesh = trimesh.Trimesh(V, mesh.faces, process=False)
     normals[~supported] = np.array(mesh.vertex_normals, float)[~supported]

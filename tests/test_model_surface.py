@@ -194,7 +194,7 @@ def test_20k_points_build_in_seconds():
 def test_scan_rows_a_level_apart():
     """A scan's sampling: rows of points 0.25 mm apart, levels 2 mm apart, open top and
     bottom. The support radius spans levels, the side is supported and within its sigma, and
-    the outlier rule keeps every point."""
+    the outlier rule keeps every point, and finds 20 moved 1 mm off."""
     rng = np.random.default_rng(6)
     R = 20.0
     th, z = np.meshgrid(np.arange(0, 2 * np.pi, 0.25 / R), np.arange(1.0, 40.0, 2.0))
@@ -204,6 +204,10 @@ def test_scan_rows_a_level_apart():
     Q, cov, vd = measure(P, nr, OA, rng)
     keep, _ = outliers(Q, cov)
     assert keep.all()
+    bad = rng.choice(len(P), 20, replace=False)
+    Qb = Q + nr * np.isin(np.arange(len(P)), bad)[:, None] * 1.0
+    keep, _ = outliers(Qb, cov)
+    assert not keep[bad].any() and keep.sum() == len(P) - 20
     m = build_surface(Q, cov, vd)
     check_mesh(m)
     assert m.params["support_radius_mm"] > 2.0

@@ -206,20 +206,20 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
              ) -> tuple[np.ndarray, np.ndarray]:
     """Which points to keep, and why: (keep (k,) bool, reason (k,) int8, codes in REASONS).
 
-    The rule: a point's neighbours within radius_mm (at most max_neighbours nearest, itself
-    left out; radius_mm defaults to neighbourhood_radius for 60 points, so a scan's open rim
-    still has ~30) get a robust
-    quadratic fit (local_fit, Gaussian weight scale radius_mm). The point is OFF_SURFACE when
-    its distance e along the fit's normal exceeds k_sigma * s, s^2 = n^T cov n + the fit's
+    The rule: a point's neighbours within radius_mm (the nearest max_neighbours, up to 1.2 times
+    the median count within the radius and at most 4 max_neighbours, itself left out; radius_mm
+    defaults to neighbourhood_radius for 60 points, so a scan's open rim still has ~30) get a
+    robust quadratic fit (local_fit, Gaussian weight scale radius_mm). The point is OFF_SURFACE
+    when its distance e along the fit's normal exceeds k_sigma * s, s^2 = n^T cov n + the fit's
     variance at it + the misfit: with chi2 the fit's reduced chi-square and s2 its points' mean
     variance along n, the fit's variance is scaled by max(1, chi2) and (chi2 - 1)+ * s2 added.
     On a smooth surface (chi2 ~ 1) that is its own and the fit's propagated std; where the
     neighbours do not fit one smooth surface at their noise (an edge, a corner), the bound
     widens with their misfit, so the edge's own points stay and only errors well beyond the
-    misfit go. ISOLATED: fewer than min_neighbours neighbours, or none within LONE *
-    radius_mm (a point that far off a surface sees it only as a ring, which fits poorly).
-    NOT_SMOOTH: kept, but the fit dropped more than max_rejected of its weight or its chi2
-    exceeds 1 by 4 of its stds (sqrt(2 / (n_eff - 6))), so it was tested at the wider bound.
+    misfit go. ISOLATED: fewer than min_neighbours neighbours, or none within LONE * radius_mm
+    (a point that far off a surface sees it only as a ring, which fits poorly). NOT_SMOOTH:
+    kept, but the fit dropped more than max_rejected of its weight or its chi2 exceeds 1 by 4 of
+    its stds (sqrt(2 / (n_eff - 6))), so it was tested at the wider bound.
     Kept: OK and NOT_SMOOTH. The quadratic follows a radius of 15 mm to a few um over the
     radius, so a curved surface's good points pass.
     """
@@ -232,7 +232,8 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
     tree = cKDTree(P)
     if radius_mm is None:
         radius_mm = neighbourhood_radius(P, target=60, min_mm=1.5)
-    kq = min(max_neighbours + 1, k)
+    counts = tree.query_ball_point(P, radius_mm, return_length=True, workers=-1)
+    kq = int(min(max(max_neighbours, 1.2 * np.median(counts)), 4 * max_neighbours, k - 1)) + 1
     dist, idx = tree.query(P, k=kq, distance_upper_bound=radius_mm, workers=-1)
     dist, idx = dist.reshape(k, kq), idx.reshape(k, kq)
     valid = np.isfinite(dist) & (idx != np.arange(k)[:, None])

@@ -161,14 +161,17 @@ def cmd_campaign(args: argparse.Namespace, models: Models | None = None) -> int:
     except ValueError as e:
         raise CliError(f"{e}; run `dmdsm calibrate-range` first") from None
     plans: list[ScanPlan] = []
-    done: list[ScanRun | None] = []
+    done: list[ScanRun | ScanFileError | None] = []
     for i, obj in enumerate(campaign.objects, 1):  # every plan's moves, before any port
         plan = campaign.plan(obj)
         try:
             checked_points(plan, cal)
-            done.append(finished_scan(plan, cal_text, setup, db))
-        except (UnsafeMove, ScanFileError) as e:
+        except UnsafeMove as e:
             raise CliError(f"object {i} ({shown(obj.object_id)}): {e}") from None
+        try:
+            done.append(finished_scan(plan, cal_text, setup, db))
+        except ScanFileError as e:  # its file is damaged: that object fails, not the rest
+            done.append(e)
         plans.append(plan)
     out = sys.stderr if args.json else sys.stdout
     return Run(args, campaign, plans, done, cal, cal_text, setup, classifier_path, classifier,
@@ -180,9 +183,9 @@ class Run:
     the rows."""
 
     def __init__(self, args: argparse.Namespace, campaign: Campaign, plans: list[ScanPlan],
-                 done: list[ScanRun | None], cal: dict, cal_text: str, setup: RangingSetup,
-                 classifier_path: Path | None, classifier: tuple | None, models: Models,
-                 out: Any) -> None:
+                 done: list[ScanRun | ScanFileError | None], cal: dict, cal_text: str,
+                 setup: RangingSetup, classifier_path: Path | None, classifier: tuple | None,
+                 models: Models, out: Any) -> None:
         self.args, self.campaign, self.plans, self.done = args, campaign, plans, done
         self.cal, self.cal_text, self.setup = cal, cal_text, setup
         self.classifier_path, self.classifier, self.models = classifier_path, classifier, models
@@ -260,6 +263,10 @@ class Run:
     def object(self, i: int, obj: CampaignObject) -> None:
         row, plan, finished = self.rows[i], self.plans[i], self.done[i]
         name = shown(obj.object_id)
+        if isinstance(finished, ScanFileError):
+            row.status, row.reason = "failed", one_line(str(finished), 300)
+            self.say(f"{name}: failed: {row.reason}")
+            return
         model = self.models.current(self.args.db, obj.object_id) if finished else None
         if finished is not None and model is not None:
             self.fill_scan(row, finished, None)
@@ -453,8 +460,8 @@ class Run:
                 r.sigma_median_mm is not None else "-",
                 _verdict(r.verdict) if r.verdict else
                 ("no classifier" if self.classifier is None else "-"),
-                f"{r.total_s:.0f} s" if r.status == "scanned" else
-                "-" if r.status != "failed" else f"{r.total_s:.0f} s"])
+                f"{r.total_s:.0f} s" if r.status in ("scanned", "failed") and r.total_s
+                else "-"])
         width = [max(len(x[k]) for x in lines) for k in range(len(head))]
         for k, x in enumerate(lines):
             print("  ".join(c.ljust(w) for c, w in zip(x, width)).rstrip())

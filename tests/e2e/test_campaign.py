@@ -17,16 +17,16 @@ import pytest
 from fly_scan_helpers import setup
 
 from dmdsm.host.model.store import load_object_model
+from dmdsm.host.ranging.calibrate import RangingSetup
+from dmdsm.host.scan.campaign_file import load_campaign
 from dmdsm.host.scan.scanfile import read_scan
+from dmdsm.host.scan.session import scan_path
 from dmdsm.sim.servers.emulator import Emulator
 from dmdsm.sim.servers.runner import SimConfig
 
 # one level each (a narrow band: the first look scans 3 levels about it), the can first; the
 # block declared steel, so that the database holds two materials to train a classifier on
-CAMPAIGN = """
-[campaign]
-mode = "auto"
-
+OBJECTS = """
 [[object]]
 id = "can"
 material = "aluminium"
@@ -42,6 +42,7 @@ material = "steel"
 size_mm = [51.0, 31.0, 41.0]
 levels_mm = [20.0]
 """
+CAMPAIGN = '[campaign]\nmode = "auto"\n' + OBJECTS
 
 
 def campaign_cmd(tmp_path, sensor, stage, *extra, toml="campaign.toml"):
@@ -141,7 +142,7 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr[-2000:]
         (tmp_path / "with_classifier.toml").write_text(
-            '[campaign]\nclassifier = "clf.model"\n' + CAMPAIGN.replace("[campaign]\n", ""))
+            '[campaign]\nclassifier = "clf.model"\n' + OBJECTS)
         r = subprocess.run(campaign_cmd(tmp_path, "x", "y", toml="with_classifier.toml"),
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr[-2000:]
@@ -150,6 +151,25 @@ def test_a_campaign_mounts_scans_models_stops_and_resumes(tmp_path):
         assert " right" in rows["can"] and " right" in rows["aluminium_block"], r.stdout
         assert "aluminium" in rows["can"].split("done before")[1]
         assert "steel" in rows["aluminium_block"].split("done before")[1]
+
+        # one object failing (its scan file is damaged) is a row with its reason, and the
+        # campaign goes on to the next
+        jar = '[[object]]\nid = "jar"\nmaterial = "glass"\nsize_mm = [81.0, 81.0, 101.0]\n'
+        (tmp_path / "damaged.toml").write_text(jar + OBJECTS)
+        plan = load_campaign(tmp_path / "damaged.toml").plan(
+            load_campaign(tmp_path / "damaged.toml").objects[0])
+        _, damaged = scan_path(plan, (tmp_path / "cal.toml").read_text(),
+                               RangingSetup.load(tmp_path / "ranging.json"), tmp_path / "db")
+        damaged.write_bytes(b"not a scan" * 100)
+        r = subprocess.run(campaign_cmd(tmp_path, "x", "y", toml="damaged.toml"),
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 1, r.stderr[-2000:]
+        rows = {line.split()[0]: line for line in r.stdout.splitlines()
+                if line.startswith(("jar ", "can ", "aluminium_block "))}
+        assert " failed " in rows["jar"] and "done before" in rows["can"] and \
+            "done before" in rows["aluminium_block"], r.stdout
+        assert f"jar: failed: {damaged}" in r.stdout and "1 of 3 objects failed" in r.stderr
+        damaged.unlink()
 
         # where no emulator mounts (the pty itself), the operator is asked: s skips, q stops
         (tmp_path / "more.toml").write_text(

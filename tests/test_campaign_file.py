@@ -121,6 +121,8 @@ BAD = [
     (OBJ + "levels_mm = [20.0, 120.0]\n", "above the object's height (95 mm"),
     (OBJ + "levels_mm = [-2.0]\n", "levels_mm[0] must be a positive"),
     ("[[object]\nid = 1\n", "is not valid TOML"),
+    ("x = " + "[" * 100_000, "nests arrays or tables too deeply"),
+    ("x = " + "{a=" * 100_000, "nests arrays or tables too deeply"),
     (OBJ + 'id = "again"\n', "is not valid TOML"),
 ]
 
@@ -156,8 +158,8 @@ def test_bad_files_are_refused_with_one_line(tmp_path):
 
 
 ID = st.text(string.ascii_letters + string.digits, min_size=1, max_size=1).flatmap(
-    lambda first: st.text(string.ascii_letters + string.digits + "_-", max_size=20).map(
-        lambda rest: first + rest))
+    lambda first: st.text(string.ascii_letters + string.digits + "._-", max_size=20).map(
+        lambda rest: first + rest)).filter(lambda s: ".." not in s)
 PRINTABLE = st.text(min_size=1, max_size=30).filter(lambda s: s.isprintable() and s.strip())
 
 

@@ -145,6 +145,9 @@ def parse_campaign(text: str, path: Path = Path("campaign.toml")) -> Campaign:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise CampaignError(f"{path} is not valid TOML: {one_line(str(e), 160)}") from None
+    except RecursionError:  # [[[[... or {a={a=... a million deep
+        raise CampaignError(f"{path} nests arrays or tables too deeply for a campaign file: "
+                            f"give [campaign] and [[object]] tables of plain values") from None
     where = str(path)
     unknown = sorted(set(doc) - {"campaign", "object"})
     if unknown:

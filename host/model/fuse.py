@@ -207,7 +207,7 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
     """Which points to keep, and why: (keep (k,) bool, reason (k,) int8, codes in REASONS).
 
     The rule: a point's neighbours within radius_mm (the nearest max_neighbours, up to 1.2 times
-    the median count within the radius and at most 4 max_neighbours, itself left out; radius_mm
+    the median count within the radius and at most 2 max_neighbours, itself left out; radius_mm
     defaults to neighbourhood_radius for 60 points, so a scan's open rim still has ~30) get a
     robust quadratic fit (local_fit, Gaussian weight scale radius_mm). The point is OFF_SURFACE
     when its distance e along the fit's normal exceeds k_sigma * s, s^2 = n^T cov n + the fit's
@@ -233,7 +233,7 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
     if radius_mm is None:
         radius_mm = neighbourhood_radius(P, target=60, min_mm=1.5)
     counts = tree.query_ball_point(P, radius_mm, return_length=True, workers=-1)
-    kq = int(min(max(max_neighbours, 1.2 * np.median(counts)), 4 * max_neighbours, k - 1)) + 1
+    kq = int(min(max(max_neighbours, 1.2 * np.median(counts)), 2 * max_neighbours, k - 1)) + 1
     dist, idx = tree.query(P, k=kq, distance_upper_bound=radius_mm, workers=-1)
     dist, idx = dist.reshape(k, kq), idx.reshape(k, kq)
     valid = np.isfinite(dist) & (idx != np.arange(k)[:, None])

@@ -4,7 +4,8 @@ Method, and why. (1) Each point gets an oriented normal: the PCA normal of its n
 signed against the beam (toward `view_dir`, the unit vector from the point toward the sensor),
 which is the one thing the scan knows for sure about outside and inside. (2) A Hoppe-style
 signed distance on a voxel grid: at each node the mean of (x - p_j) . n_j over its 8 nearest
-points, weighted toward the nearest; far from the data this extends the tangent planes, so a
+points, weighted toward the nearest (beyond 2.5 voxels from any point, the nearest occupied
+voxel's point's plane, by a distance transform); far from the data this extends the planes, so a
 hole the scans did not see is closed by the grid (its faces lie at most a margin beyond the
 points) instead of leaving the surface open. The grid's outer layer is forced outside, so
 marching cubes (skimage) always yields closed surfaces; the largest component is kept. (3) The
@@ -15,7 +16,8 @@ its sigma is that fit's height std propagated from the points' covariances (n^T 
 point, sandwich over the fit's weights), inflated by the fit's robust reduced chi-square
 (from the residuals' MAD, so a face the robust fit rightly ignored at an edge does not count)
 where the residuals significantly exceed the covariances (the model or the noise is worse
-than stated), plus the common (calibration) part, which a local fit cannot average down.
+than stated), plus the common (calibration) part, which a local fit cannot average down, plus
+a bias term where the points nearest the vertex misfit the fit (a sharp edge it rounds).
 Vertices with too few points near them, or with all their points on one side (a hole's rim),
 are unsupported: not moved, sigma NaN. The support radius comes from the points' density
 (fuse.neighbourhood_radius), so rows of dense points a level apart get a radius spanning
@@ -165,6 +167,10 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     crowd out the levels beside them.
     cov_common (k, 3, 3) mm^2: the part of cov shared by neighbouring points (fuse's
     covariance_parts' common part), added to sigma^2 as if fully correlated (not averaged).
+    sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else 1)
+    + common variance + bias^2), bias^2 = (chi2_near - 1) * s2 where the points nearest the
+    vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT of chi2's stds (an edge the
+    quadratic rounds). params records the choices (spacing, radius, grid, watertight, time).
     Raises ValueError for fewer than 20 finite points or shapes that do not match."""
     t0 = time.perf_counter()
     P = np.asarray(P_mm, float)

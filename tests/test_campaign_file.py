@@ -60,6 +60,14 @@ def test_a_good_file_is_read_as_written(tmp_path):
     assert parse_campaign(c.to_toml(), tmp_path / "c.toml") == c
 
 
+def test_an_object_may_have_its_own_modality(tmp_path):
+    text = "[campaign]\nmodality = \"both\"\n" + OBJ + "modality = \"us\"\n"
+    c = parse_campaign(text, tmp_path / "c.toml")
+    assert c.objects[0].modality == "us" and c.plan(c.objects[0]).modality == "us"
+    with pytest.raises(CampaignError, match="modality must be one of"):
+        parse_campaign(OBJ + "modality = \"sonar\"\n", tmp_path / "c.toml")
+
+
 def test_the_defaults_and_the_campaign_table_is_optional():
     c = parse_campaign(OBJ)
     assert (c.mode, c.modality, c.classifier) == ("auto", "both", None)
@@ -173,7 +181,8 @@ def campaigns(draw):
             st.floats(0.5, size[2]), min_size=1, max_size=4).map(tuple)))
         objs.append(CampaignObject(oid, draw(PRINTABLE), size, draw(st.booleans()),
                                    draw(st.text(max_size=40)),
-                                   draw(st.one_of(st.just(""), PRINTABLE)), levels))
+                                   draw(st.one_of(st.just(""), PRINTABLE)), levels,
+                                   draw(st.sampled_from(("",) + MODALITIES))))
     classifier = draw(st.one_of(st.none(), PRINTABLE.filter(lambda s: "\x00" not in s).map(
         lambda s: Path("/models") / s.strip())))
     return Campaign(tuple(objs), classifier, draw(st.sampled_from(MODES)),

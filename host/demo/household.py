@@ -48,7 +48,6 @@ def stage_household(d: Demo) -> Section:
     names = list(HOUSEHOLD)
     rows: list[list] = []
     wrong: list[str] = []  # scans whose modalities are not those of their material
-    runs_by_name: dict[str, dict] = {}
     for name in names:
         material = HOUSEHOLD[name][0]
         obj = household(name)[0]
@@ -57,7 +56,7 @@ def stage_household(d: Demo) -> Section:
         radius = float(np.hypot(w, dep) / 2) if boxy else w / 2
         mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
         d.mount(name)
-        runs = runs_by_name[name] = {}
+        runs: dict[str, dict] = {}
         for mode, db in (("step", "db"), ("fly", "db_fly")):
             plan = object_plan(name, material, radius, w, height, mod, d.quick, mode)
             path = write_plan(d, f"{name}{'' if mode == 'step' else '_fly'}", plan)
@@ -118,91 +117,4 @@ def stage_household(d: Demo) -> Section:
         f"its 12 shots over 2 mm of travel, which on a curved surface smears the pulse the "
         f"classifier reads (docs/scanning.md).")
     sec.text.append(f"Database: {d.out / 'db'} (`dmdsm db list --db {d.out / 'db'}`).")
-    auto_part(d, sec, runs_by_name)
     return sec
-
-
-AUTO_OBJECTS = ("soda_can", "tissue_box")  # scanned in auto mode too (a band of levels)
-AUTO_QUICK = ("soda_can",)
-BAND_MM = 8.0  # the auto scans' band of levels about the fixed plans' level (emulator time)
-
-
-def _band_coverage(sim: object, files: dict[str, str], z_range: tuple[float, float],
-                   max_incidence_deg: float) -> dict[str, dict[str, float]]:
-    """Per scan mode, per modality: the share of the object's true surface within the band
-    that the sensor can see (within max_incidence_deg, from some table angle) with a point
-    within 2 mm, from the emulator's truth."""
-    from dmdsm.sim.physics.visibility import reachable_surface
-
-    from ..scan.coverage import coverage
-    from ..scan.points import scan_points
-    from ..scan.scanfile import read_scan
-
-    s = sim.scene
-    v, n = s.v / np.linalg.norm(s.v), s.n / np.linalg.norm(s.n)
-    ref = np.concatenate([reachable_surface(t, v, n, spacing_mm=2.0, z_range_mm=z_range,
-                                            max_incidence_deg=max_incidence_deg)[0]
-                          for t in sim.truth_objects()])
-    out = {}
-    for mode, f in files.items():
-        pts = scan_points(read_scan(Path(f), waveforms=False))
-        out[mode] = {m: float(coverage(ref, pts[m]["P"], 2.0)) for m in ("oa", "us")}
-    return out
-
-
-def auto_part(d: Demo, sec: Section, runs_by_name: dict[str, dict]) -> None:
-    """AUTO_OBJECTS scanned in auto mode over a band of levels (BAND_MM about the fixed
-    plans' level, 2 mm apart): coverage of the true surface in that band next to the fixed
-    plans' (which scan that one level, so in the band they cover only its strip)."""
-    from dmdsm.sim.physics.objects import HOUSEHOLD, bounding_size, household
-
-    from ..scan.plan import plan_for_size
-
-    rows: list[list] = []
-    misses: list[str] = []
-    for name in (AUTO_QUICK if d.quick else AUTO_OBJECTS):
-        material = HOUSEHOLD[name][0]
-        obj = household(name)[0]
-        w, dep, h = bounding_size(obj)
-        boxy = type(obj.shape).__name__ == "Box"
-        mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
-        plan = plan_for_size(name, (w, dep, h), not boxy, material, "auto", mod)
-        mid = round(min(0.5 * h, 40.0))  # about the fixed plans' one level
-        plan.levels_mm = [float(z) for z in np.arange(mid - BAND_MM / 2, mid + BAND_MM / 2
-                                                       + 1e-9, 2.0) if z >= 4.5]
-        d.mount(name)
-        summary = scan_into(d, write_plan(d, f"{name}_auto", plan), "db_auto")
-        z_range = (min(plan.levels_mm) - 1.0, max(plan.levels_mm) + 1.0)
-        files = {**{m: r["file"] for m, r in runs_by_name[name].items()},
-                 "auto": summary["file"]}
-        cov = _band_coverage(d.sim, files, z_range, plan.max_incidence_deg)
-        a = summary["auto"]
-        for mode in ("step", "fly", "auto"):
-            r = runs_by_name[name][mode] if mode != "auto" else summary
-            rows.append([name, mode, r["points"], f"{100 * cov[mode]['oa']:.1f}",
-                         f"{100 * cov[mode]['us']:.1f}", r["points_per_s"],
-                         f"{len(a['angles_deg'])} angles, {a['lines']} lines"
-                         if mode == "auto" else ""])
-        sec.values[name]["auto"] = {"points": summary["points"], "coverage_truth": cov,
-                                    "coverage_outline": a["coverage"],
-                                    "points_per_s": summary["points_per_s"],
-                                    "angles_deg": a["angles_deg"], "levels_mm": plan.levels_mm}
-        best = max(cov["auto"][m] for m in ("oa", "us") if mod in ("both", m))
-        fixed = max(cov[k][m] for k in ("step", "fly") for m in ("oa", "us")
-                    if mod in ("both", m))
-        if not best > fixed:
-            misses.append(f"{name} (auto {100 * best:.0f} % vs fixed {100 * fixed:.0f} %)")
-    sec.check("auto scans cover more of the true surface in their band than the fixed plans:",
-              "; ".join(misses) if misses else "yes, every object",
-              "coverage at 2 mm of the surface the sensor can see within the plan's incidence "
-              "(45 deg), from the emulator's truth", not misses)
-    sec.table(["object", "mode", "points", "OA coverage %", "US coverage %", "points/s",
-               "auto"], rows)
-    sec.text.append(
-        f"Auto scans ({', '.join(AUTO_QUICK if d.quick else AUTO_OBJECTS)}; into "
-        f"{d.out / 'db_auto'}): a first look from the bounding cylinder, the outline it "
-        f"measured, then lines that follow it in X and Y at the table angles that see it "
-        f"(docs/scanning.md). Levels in a {BAND_MM:g} mm band about the fixed plans' level, "
-        f"2 mm apart, to keep the demo's emulator time short; coverage is measured in that "
-        f"band, where the fixed plans scan one level. `python bench/scan_coverage.py` scans "
-        f"the block and six mesh objects this way.")

@@ -1,4 +1,4 @@
-"""The demo's run: the five stages in order through the `dmdsm` commands, then the report files."""
+"""The demo's run: the six stages in order through the `dmdsm` commands, then the report files."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from ..commands.errors import Terminated
 from ..files import atomic_output, one_line
 from ..report.page import Section, html_page, markdown
 from .household import stage_household
+from .models import stage_models
 from .session import TITLES, Demo, stage_block, stage_classify, stage_ranging, stage_rig
 
 
@@ -124,7 +125,8 @@ def run_demo(out_dir: str, quick: bool = False, speed: float = 8.0, as_json: boo
     t_all = time.perf_counter()
     if stage_firmware:
         speed = min(speed, 2.0)
-    stages = [stage_ranging, stage_rig, stage_block, stage_household, stage_classify]
+    stages = [stage_ranging, stage_rig, stage_block, stage_household, stage_classify,
+              stage_models]
     sections: list[Section] = []
     d: Demo | None = None
     stopped: KeyboardInterrupt | None = None

@@ -19,6 +19,8 @@ The format (TOML, UTF-8, at most MAX_BYTES)::
     scene = "soda_can"              # optional: the emulator's scene to mount (default: id)
     levels_mm = [40.0, 42.0]        # optional: only these heights (mm above the table)
                                     # instead of the plan's (auto: every 2 mm)
+    modality = "us"                 # optional: this object's, instead of [campaign]'s (glass
+                                    # and steel give no OA: "us"; foam no US echo: "oa")
 
 Each object's scan plan is `plan_for_size(id, size_mm, round, material, mode, modality)`
 (host/scan/plan.py) with its notes and levels; it is checked here, so a size out of the
@@ -43,7 +45,7 @@ MAX_TEXT = 1000         # characters of a notes, material or path value
 MAX_LEVELS = 200        # levels_mm values of one object
 MAX_ID = 90             # an id's characters: the scan id is ID-<8 hex digits>, at most 100
 CAMPAIGN_KEYS = ("classifier", "mode", "modality")
-OBJECT_KEYS = ("id", "material", "size_mm", "round", "notes", "scene", "levels_mm")
+OBJECT_KEYS = ("id", "material", "size_mm", "round", "notes", "scene", "levels_mm", "modality")
 EXAMPLE = ('[[object]]\\nid = "soda_can"\\nmaterial = "aluminium"\\n'
            'size_mm = [66.0, 66.0, 122.0]\\nround = true')
 
@@ -63,6 +65,7 @@ class CampaignObject:
     notes: str = ""
     scene: str = ""  # the emulator's scene; "" in the file means the id (see `scene_name`)
     levels_mm: tuple[float, ...] = ()  # () : the plan's own levels
+    modality: str = ""  # "": the campaign's
 
     @property
     def scene_name(self) -> str:
@@ -84,7 +87,7 @@ class Campaign:
         """The object's scan plan (PlanError if it cannot be made: load_campaign has
         checked every object's)."""
         plan = plan_for_size(obj.object_id, obj.size_mm, obj.round, obj.material,
-                             mode=self.mode, modality=self.modality)
+                             mode=self.mode, modality=obj.modality or self.modality)
         plan.notes = obj.notes
         if obj.levels_mm:
             plan.levels_mm = [float(z) for z in obj.levels_mm]
@@ -109,6 +112,8 @@ class Campaign:
             if o.levels_mm:
                 out.append("levels_mm = [" + ", ".join(repr(float(z)) for z in o.levels_mm)
                            + "]")
+            if o.modality:
+                out.append(f"modality = {_str(o.modality)}")
         return "\n".join(out) + "\n"
 
 
@@ -313,4 +318,6 @@ def _object(raw: dict, where: str) -> CampaignObject:
         if top > size_mm[2]:
             raise CampaignError(f"{where}: levels_mm holds {top:g} mm, above the object's "
                                 f"height ({size_mm[2]:g} mm, size_mm[2]): give heights on it")
-    return CampaignObject(oid, material, size_mm, round_, notes, scene, levels)
+    modality = _choice(raw, "modality", MODALITIES, "", f"{where}:") if "modality" in raw \
+        else ""
+    return CampaignObject(oid, material, size_mm, round_, notes, scene, levels, modality)

@@ -16,7 +16,7 @@ from dmdsm.host.commands.errors import Terminated
 from dmdsm.host.demo.session import Demo, HeldStderr
 
 STAGES = {1: "1. Ranging", 2: "2. Scanner calibration", 3: "3. Aluminium block",
-          4: "4. Household set", 5: "5. Material classification"}
+          4: "4. Household set", 5: "5. Material classification", 6: "6. The 3D contour"}
 
 
 def _demo(out):
@@ -74,14 +74,14 @@ def test_a_signal_stops_the_demo_and_keeps_the_report(tmp_path, sig, event, stag
     # the commands' own stop lines would say "run the same command": not the demo's way
     assert "dmdsm: interrupted" not in rest and "dmdsm: terminated" not in rest, rest
     assert "run the same command" not in rest, rest
-    for k in range(stage, 6):  # neither the stopped stage nor a later one reports a result
+    for k in range(stage, 7):  # neither the stopped stage nor a later one reports a result
         assert not any(line.startswith(STAGES[k]) for line in rest.splitlines()), rest
     assert not (out / "classify").exists()
     summary = json.loads((out / "summary.json").read_text())
     st = summary["stages"]
     assert summary["interrupted"].startswith(f"stopped by {name}") and not summary["ok"]
-    assert [st[str(k)]["status"] for k in range(stage, 6)] == \
-        ["interrupted"] + ["not run"] * (5 - stage)
+    assert [st[str(k)]["status"] for k in range(stage, 7)] == \
+        ["interrupted"] + ["not run"] * (6 - stage)
     assert all(st[str(k)]["status"] in ("ok", "FAILED") for k in range(1, stage))
     html = (out / "report.html").read_text()
     assert html.rstrip().endswith("</html>") and "(interrupted)" in html

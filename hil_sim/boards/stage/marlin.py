@@ -333,7 +333,7 @@ class MarlinEmulator(GcodeMixin):
         if b["kind"] == "move":  # waiting for a free planner block
             if self.planner.free_blocks() <= 0:
                 return self._busy(b)
-            self.planner.add(self.now, *b["args"])
+            self.planner.line_to(self.now, *b["args"])
         elif b["kind"] == "sync":  # M400 / G4 / G28: wait for time to pass
             if self.now < max(b["until"], self.planner.busy_until(self.now)):
                 return self._busy(b)

@@ -93,10 +93,11 @@ class GcodeMixin:
         return np.rint((raw + self.native0) * self.planner.spu).astype(np.int64)
 
     def _position_line(self, live: bool = False, live_counts: bool = False) -> str:
-        """The M114 / M154 report: logical position of the last move, then the counts of
-        that target (live: where the steppers are now, as M114 R; live_counts: the last
+        """The M114 / M154 report (report_current_position_projected): logical position of
+        the last move, then the planner's position in steps, which a move too short to queue
+        left where it was (live: where the steppers are now, as M114 R; live_counts: the last
         move's position with the steppers' counts now, as Marlin's report_current_position
-        after G92 prints them)."""
+        after G92 and G28 prints them)."""
         self.planner.update(self.now)
         if live:
             raw = self.planner.position()
@@ -104,7 +105,8 @@ class GcodeMixin:
         elif live_counts:
             pos_v, counts_v = self.current, self._counts(self.planner.position())
         else:
-            pos_v, counts_v = self.current, self._counts(self.current - self.offset)
+            pos_v = self.current
+            counts_v = self.planner.pos + np.rint(self.native0 * self.planner.spu).astype(int)
         pos = " ".join(f"{a}:{marlin_float(v)}" for a, v in zip(self._axes(), pos_v))
         counts = " ".join(f"{a}:{int(c)}" for a, c in zip(self._axes(), counts_v))
         return f"{pos} Count {counts}"
@@ -131,13 +133,12 @@ class GcodeMixin:
         if feed is not None and feed > 0:  # Marlin keeps the last feedrate for F <= 0, NaN
             self.feed_mm_s = feed / 60.0
         target = self._target(words)
-        start = self.planner.to_steps(self.current - self.offset)
         end = self.planner.to_steps(target - self.offset)
-        self.current = target
+        self.current = target  # even when the planner drops the move (too few steps)
         if self.planner.free_blocks() <= 0:
-            self._block("move", 0.0, n, args=(start, end, self.feed_mm_s))
+            self._block("move", 0.0, n, args=(end, self.feed_mm_s))
             return False
-        self.planner.add(self.now, start, end, self.feed_mm_s)
+        self.planner.line_to(self.now, end, self.feed_mm_s)
         return True
 
     _G1 = _G0
@@ -168,13 +169,13 @@ class GcodeMixin:
                 self.offset[i] = self.native0[i] = self.limits.min_pos[i]  # raw 0: endstop
                 self.current[i] = self.limits.min_pos[i]
                 self.homed[i] = True
-                self.planner.steps[i] = 0
+                self.planner.set_axis(i, 0)
             if z_raise:  # the Chiron example's Z_AFTER_HOMING: the nozzle clears the bed
                 i = self.limits.axis("Z")
                 self.current[i] = Z_AFTER_HOMING_MM
-                self.planner.steps[i] = round((Z_AFTER_HOMING_MM - self.offset[i]) *
-                                              self.planner.spu[i])
-            self.out.append(self._position_line())
+                self.planner.set_axis(i, round((Z_AFTER_HOMING_MM - self.offset[i]) *
+                                               self.planner.spu[i]))
+            self.out.append(self._position_line(live_counts=True))
 
         self._block("sync", t, n, then=done)
         return False
@@ -186,6 +187,8 @@ class GcodeMixin:
         self.relative = True
 
     def _G92(self, words: dict, n: int | None) -> None:
+        # with workspace offsets (the build's default) G92 shifts the offset alone: the native
+        # position, the planner's steps (and any steps a dropped move left owed) stay
         for i, a in enumerate(self._axes()):
             if words.get(a) is not None:
                 raw = self.current[i] - self.offset[i]
@@ -231,8 +234,8 @@ class GcodeMixin:
                     return "".join(f" {a}:{float(np.float32(v)): .{digits}f}"  # "Y: 0.000"
                                    for a, v in zip(axes, values))
                 from_steps = self.planner.position() + self.native0
-                self.out += [
-                    self._position_line(), "",
+                self.out += [  # report_current_position(): the steppers' counts
+                    self._position_line(live_counts=True), "",
                     "Logical:" + fmt("XYZ", self.current),
                     "Raw:    " + fmt("XYZ", native),
                     "Stepper:" + fmt(self._axes(), self._counts(self.planner.position()), 0),

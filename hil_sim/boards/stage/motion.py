@@ -6,7 +6,9 @@ entry and exit speed; a block runs a trapezoid in step rates that starts and end
 than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
 BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; the running block is never
 re-planned; the dominant axis steps at the profile's rate and the others follow by
-Bresenham. Positions are in mm (X, Y, Z) and degrees (A); the steppers hold whole steps.
+Bresenham; a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its
+steps left to the next move (the planner keeps its own position, apart from the steppers').
+Positions are in mm (X, Y, Z) and degrees (A); the steppers hold whole steps.
 Not modelled: S-curve acceleration (off in the patch) and the ISR's tick quantisation.
 """
 
@@ -22,6 +24,8 @@ from dmdsm.marlin_patch import MINIMAL_STEP_RATE, MachineLimits
 
 BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
 MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
+MIN_STEPS_PER_SEGMENT = 6       # Configuration_adv.h: a block whose largest axis step count is
+# below this is not queued, and the planner's position stays where it was (planner.cpp)
 HISTORY = 512                   # finished blocks kept for position_at() and step_edges():
 # a fly line of joined short moves runs dozens of blocks between two queries of the sync wire
 
@@ -47,6 +51,7 @@ class Move:
     entry: float = 0.0           # planned entry and exit speed (mm/s)
     exit: float = 0.0
     t0: float | None = None      # when its first step was taken (None: still queued)
+    dropped: bool = False        # too few steps: never queued (MIN_STEPS_PER_SEGMENT)
     cut: float = math.inf        # a quick stop ended it here (s)
     _edges: dict = field(default_factory=dict)
 
@@ -164,11 +169,14 @@ class Planner:
 
     limits: MachineLimits
     steps: np.ndarray = field(init=False)       # where the steppers are (last update)
+    pos: np.ndarray = field(init=False)  # Marlin's planner.position: the last queued block's
+    # target (steps); a dropped move leaves it, so the next move takes the dropped steps too
     queue: list[Move] = field(default_factory=list)
     prev_end: float = -math.inf  # when the last finished block ended (s)
 
     def __post_init__(self) -> None:
         self.steps = np.zeros(len(self.limits.axes), dtype=np.int64)
+        self.pos = self.steps.copy()
         self.spu = np.asarray(self.limits.steps_per_unit, dtype=float)
         self.vmax = np.asarray(self.limits.max_feedrate, dtype=float)
         self.amax = np.asarray(self.limits.max_acceleration, dtype=float)
@@ -183,9 +191,21 @@ class Planner:
         """Planner blocks free (Marlin's P in `ok N P B`)."""
         return self.limits.block_buffer_size - len(self.queue)
 
+    def set_axis(self, axis: int, count: int) -> None:
+        """Set an axis's planner position and stepper count (homing; the queue is empty)."""
+        self.pos[axis] = self.steps[axis] = count
+
+    def line_to(self, now: float, target_steps: np.ndarray, feed_mm_s: float) -> Move:
+        """Queue at time `now` (s) a move from the planner's position to target (steps), as
+        Marlin's buffer_line: it is dropped, and the planner's position kept, if no axis
+        moves MIN_STEPS_PER_SEGMENT steps or more (`move.dropped`)."""
+        return self.add(now, self.pos, target_steps, feed_mm_s)
+
     def add(self, now: float, start_steps: np.ndarray, target_steps: np.ndarray,
             feed_mm_s: float, accel: float | None = None) -> Move:
-        """Queue at time `now` (s) a move from start to target at up to feed_mm_s."""
+        """Queue at time `now` (s) a move from start to target at up to feed_mm_s; one of
+        fewer than MIN_STEPS_PER_SEGMENT steps on every axis is returned `dropped`, not
+        queued. A queued move's target becomes the planner's position."""
         delta = (target_steps - start_steps) / self.spu
         linear = float(np.linalg.norm(delta[:3]))
         length = linear if linear > 0 else float(abs(delta[3:]).sum())
@@ -201,8 +221,10 @@ class Planner:
                                                  np.inf))))
         move = Move(start_steps.copy(), target_steps.copy(), length, max(v, 1e-6),
                     max(a, 1e-6), unit, added=now, after_idle=not self.queue)
-        if move.n == 0:
-            return move  # Marlin drops a move of no steps
+        if move.n < MIN_STEPS_PER_SEGMENT:
+            move.dropped = True  # Marlin's _populate_block bails out before the position
+            return move          # update: the steps stay owed to the next move
+        self.pos = np.array(target_steps, dtype=np.int64)
         prev = self.queue[-1] if self.queue else None
         move.max_entry = self._junction(prev, move) if prev is not None else 0.0
         self.queue.append(move)
@@ -292,6 +314,7 @@ class Planner:
                 m.cut = now
         self.queue.clear()
         self.prev_end = now
+        self.pos = self.steps.copy()  # quickstop_stepper(): sync_plan_position()
 
     def position(self) -> np.ndarray:
         """Where the steppers are, in mm and degrees."""

@@ -51,7 +51,7 @@ def tiny_model(object_id="cup", sources=None, n=6, seed=0, classes=("steel", "gl
         points_mm=rng.normal(0, 10, (n, 3)),
         points_cov_mm2=np.broadcast_to(np.eye(3) * 0.01, (n, 3, 3)).copy(),
         points_modality=rng.integers(0, 2, n).astype(np.uint8),
-        points_scan=np.zeros(n, np.int32), points_index=np.arange(n, dtype=np.int32),
+        points_scan=np.zeros(n, np.int32), points_row=np.arange(n, dtype=np.int32),
         points_outlier=rng.random(n) < 0.2,
         vertices_mm=v, faces=np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]], np.int32),
         normals=v / np.linalg.norm(v, axis=1, keepdims=True),
@@ -125,7 +125,7 @@ def models(draw):
         points_mm=arr((n, 3), fl, "f8"), points_cov_mm2=arr((n, 3, 3), fl, "f8"),
         points_modality=arr((n,), st.integers(0, 1), "u1"),
         points_scan=arr((n,), st.integers(0, n_src - 1), "i4"),
-        points_index=arr((n,), st.integers(0, 2**31 - 1), "i4"),
+        points_row=arr((n,), st.integers(0, 2**31 - 1), "i4"),
         points_outlier=arr((n,), st.booleans(), bool), vertices_mm=arr((v, 3), fl, "f8"),
         faces=arr((f, 3), st.integers(0, max(v - 1, 0)), "i4"),
         normals=normals / np.linalg.norm(normals, axis=1, keepdims=True), sigma_mm=sigma,
@@ -219,8 +219,8 @@ def test_an_invalid_model_is_refused_before_anything_is_written(tmp_path):
         with pytest.raises(ModelError, match=name):
             write_model(tmp_path, m)
     m = tiny_model()
-    m.points_index = m.points_index.astype(float)  # floats as indices: refused, not cast
-    with pytest.raises(ModelError, match="points_index must hold int32"):
+    m.points_row = m.points_row.astype(float)  # floats as indices: refused, not cast
+    with pytest.raises(ModelError, match="points_row must hold int32"):
         m.validate()
     assert not (tmp_path / "models" / "cup").exists() or not os.listdir(tmp_path / "models/cup")
 

@@ -26,8 +26,6 @@ from .fuse import REASONS, covariance_parts, outliers
 from .store import ModelError, ObjectModel, check_object_id, utc_now
 from .surface import build_surface
 
-SUPPORT_POINTS = 30        # the support radius holds about this many points (median)
-LEVELS_SPANNED = 5         # ... and spans this many levels of the scans (2.5 level gaps)
 MATERIAL_RADIUS_MM = 3.0   # waveforms within this of a vertex give it their probabilities
 STAGE_STD_MM = 0.005       # the stage's repeatability per axis (Marlin's step: 1/80 mm)
 TABLE_STD_DEG = 0.01       # the turntable's angle repeatability
@@ -68,11 +66,10 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                    table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
     (mm^2; `common`: the part shared by neighbours, calibration and table), the direction
-    toward the sensor, modality (0 OA, 1 US), point index and the level gap (mm) of its
-    modality's points in this scan."""
+    toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
     pts = scan_points(scan)
     cal = scan.calibration
-    keys = ("P", "cov", "common", "view", "mod", "index", "gap")
+    keys = ("P", "cov", "common", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):
         p = pts[m]
@@ -91,13 +88,11 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
         out["common"].append(common)
         out["view"].append(_view_dirs(scan, p["theta_deg"]))
         out["mod"].append(np.full(len(P), k, np.uint8))
-        out["index"].append(np.asarray(p["index"], np.int32))
-        out["gap"].append(np.full(len(P), level_gap_mm(P[:, 2], np.asarray(p["level"]))))
+        out["index"].append(np.asarray(p["row"], np.int32))
     if not out["P"]:
         return {"P": np.zeros((0, 3)), "cov": np.zeros((0, 3, 3)),
                 "common": np.zeros((0, 3, 3)), "view": np.zeros((0, 3)),
-                "mod": np.zeros(0, np.uint8), "index": np.zeros(0, np.int32),
-                "gap": np.zeros(0)}
+                "mod": np.zeros(0, np.uint8), "index": np.zeros(0, np.int32)}
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
@@ -110,38 +105,13 @@ def waveform_probabilities(scan: ScanData, classifier: tuple[FusedModel, dict],
     check_provenance(prov, model_path, ds.fs_hz, ds.window)
     pts = scan_points(scan)
     place = np.full((scan.n_points, 3), np.nan)
-    row_of = {int(i): r for r, i in enumerate(scan.points["point_index"])}
     for m in reversed(MODS):  # OA last: it wins where both are there
-        for i, P in zip(pts[m]["index"], pts[m]["P"]):
-            place[row_of[int(i)]] = P
+        place[pts[m]["row"]] = pts[m]["P"]
     rows = ds.usable(model.modalities)
     rows = rows[np.all(np.isfinite(place[rows]), axis=1)]
     if not len(rows):
         return np.zeros((0, 3)), np.zeros((0, len(model.classes)))
     return place[rows], np.asarray(model.predict_proba(ds.subset(rows)), float)
-
-
-def support_radius_mm(P_mm: np.ndarray, level_gap_mm: float = 0.0, lo_mm: float = 1.5,
-                      hi_mm: float = 5.0) -> float:
-    """The local fits' and the outlier rule's neighbourhood radius (mm, within lo..hi): the
-    radius within which the median point has SUPPORT_POINTS others, and at least LEVELS_SPANNED
-    / 2 level gaps, so that a quadratic fit sees several levels (a turntable scan's points lie
-    on rows of constant height: dense along a row, level_gap_mm apart across). Not from the
-    nearest neighbour: a waveform's OA and US points lie a fraction of a mm apart."""
-    k = min(SUPPORT_POINTS, len(P_mm) - 1)
-    if k < 1:
-        return hi_mm
-    d, _ = cKDTree(P_mm).query(P_mm[:: max(1, len(P_mm) // 5000)], k=k + 1)
-    return float(np.clip(max(np.median(d[:, -1]), LEVELS_SPANNED / 2 * level_gap_mm),
-                         lo_mm, hi_mm))
-
-
-def level_gap_mm(z_mm: np.ndarray, level: np.ndarray) -> float:
-    """The median height step (mm) between a scan's neighbouring levels (0: one level)."""
-    heights = np.sort([np.median(z_mm[level == k]) for k in np.unique(level)])
-    steps = np.diff(heights)
-    steps = steps[steps > 0.05]
-    return float(np.median(steps)) if len(steps) else 0.0
 
 
 def vertex_materials(vertices_mm: np.ndarray, places_mm: np.ndarray, prob: np.ndarray,
@@ -204,15 +174,13 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
     if len(pts["P"]) < 50:
         raise ModelError(f"object {object_id!r} has {len(pts['P'])} points in its scans: too "
                          f"few for a surface; scan it (more levels or angles) first")
-    radius = support_radius_mm(pts["P"], float(np.median(pts["gap"])))
-    good, why = outliers(pts["P"], pts["cov"], radius_mm=radius)
+    good, why = outliers(pts["P"], pts["cov"])
     bad = ~good
     say(f"{int(bad.sum())} of {len(bad)} points are outliers ("
         + ", ".join(f"{REASONS[int(c)]} {int((why == c).sum())}" for c in np.unique(why[bad]))
         + ")" if bad.any() else "no outliers")
     surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
-                         spacing_mm=spacing_mm, support_radius_mm=radius,
-                         cov_common=pts["common"][good])
+                         spacing_mm=spacing_mm, cov_common=pts["common"][good])
     classes: list[str] = []
     prob = np.zeros((len(surf.vertices_mm), 0), np.float32)
     if clf is not None:
@@ -227,7 +195,7 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
                 "classifier": str(classifier) if classifier else "",
                 "modalities": list(modalities), **surf.params},
         summary={}, points_mm=pts["P"], points_cov_mm2=pts["cov"],
-        points_modality=pts["mod"], points_scan=pts["scan"], points_index=pts["index"],
+        points_modality=pts["mod"], points_scan=pts["scan"], points_row=pts["index"],
         points_outlier=bad, vertices_mm=surf.vertices_mm, faces=surf.faces,
         normals=surf.normals, sigma_mm=surf.sigma_mm, support=surf.support,
         supported=surf.supported, classes=classes, material_prob=prob)

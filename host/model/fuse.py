@@ -106,8 +106,8 @@ def _median(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
-              h_mm: float, ref_normal: np.ndarray | None = None, iters: int = 4
-              ) -> dict[str, np.ndarray]:
+              h_mm: float, ref_normal: np.ndarray | None = None, iters: int = 4,
+              curvature_prior: float = 1e-9) -> dict[str, np.ndarray]:
     """Robust weighted quadratic fit of each centre's neighbours, evaluated at the centre.
 
     x (m, 3) centres, Q (m, K, 3) neighbours (mm), valid (m, K) which of them are real (each row
@@ -142,7 +142,11 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     s2 = np.einsum("mkj,mj->mk", np.matmul(cov, nrm[:, None, :, None])[..., 0], nrm)
     s2 = np.where(valid, np.maximum(s2, 1e-12), 1.0)
     w = w0.copy()
-    ridge = 1e-9 * np.eye(6)
+    # curvature_prior: a ridge on the quadratic terms (u, v in weight scales), times sum w.
+    # Where the neighbours span too few rows in one direction (a scan's levels near the
+    # band's edge: two rows) that curvature is not determined, and without a prior the fit
+    # is singular and its height wild; with one that direction is fitted as a plane.
+    ridge = np.diag([1e-9, 1e-9, 1e-9] + [curvature_prior] * 3)
     for it in range(iters + 1):
         Aw = A * w[:, :, None]
         Ninv = np.linalg.inv(np.matmul(Aw.transpose(0, 2, 1), A) + ridge * sw[:, None, None])
@@ -201,10 +205,34 @@ def neighbourhood_radius(P_mm: np.ndarray, target: int = 20, min_mm: float = 1.0
 
 
 def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
-             k_sigma: float = 5.0,
-             min_neighbours: int = 8, max_neighbours: int = 32, max_rejected: float = 0.3
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Which points to keep, and why: (keep (k,) bool, reason (k,) int8, codes in REASONS).
+             k_sigma: float = 5.0, min_neighbours: int = 8, max_neighbours: int = 32,
+             max_rejected: float = 0.3, passes: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Which points to keep, and why: (keep (k,) bool, reason (k,) int8, codes in REASONS):
+    _outlier_pass's rule, applied again to the points kept so far (at most `passes` times,
+    the radius fixed by the first): two gross errors side by side each look like the other's
+    rough surface (NOT_SMOOTH, kept) until one of them is gone."""
+    P = np.asarray(P_mm, float)
+    if radius_mm is None and len(P):
+        radius_mm = neighbourhood_radius(P, target=60, min_mm=1.5)
+    keep, reason = _outlier_pass(P, cov, radius_mm, k_sigma, min_neighbours, max_neighbours,
+                                 max_rejected)
+    for _ in range(passes - 1):
+        kept = np.flatnonzero(keep)
+        if len(kept) == len(P) or not len(kept):
+            break
+        k2, r2 = _outlier_pass(P[kept], np.asarray(cov, float)[kept], radius_mm, k_sigma,
+                               min_neighbours, max_neighbours, max_rejected)
+        if k2.all():
+            break
+        reason[kept] = r2
+        keep[kept] = k2
+    return keep, reason
+
+
+def _outlier_pass(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
+                  k_sigma: float = 5.0, min_neighbours: int = 8, max_neighbours: int = 32,
+                  max_rejected: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """One pass of the outlier rule over all points: (keep, reason).
 
     The rule: a point's neighbours within radius_mm (the nearest max_neighbours, up to 1.2 times
     the median count within the radius and at most 2 max_neighbours, itself left out; radius_mm

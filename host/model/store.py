@@ -33,7 +33,7 @@ AGAIN = "build the model again or remove the file"
 ARRAYS: dict[str, tuple[str, str, tuple]] = {
     "points_mm": ("f8", "N", (3,)), "points_cov_mm2": ("f8", "N", (3, 3)),
     "points_modality": ("u1", "N", ()), "points_scan": ("i4", "N", ()),
-    "points_index": ("i4", "N", ()), "points_outlier": ("b1", "N", ()),
+    "points_row": ("i4", "N", ()), "points_outlier": ("b1", "N", ()),
     "vertices_mm": ("f8", "V", (3,)), "faces": ("i4", "F", (3,)), "normals": ("f8", "V", (3,)),
     "sigma_mm": ("f8", "V", ()), "support": ("i4", "V", ()), "supported": ("b1", "V", ()),
     "material_prob": ("f4", "V", ("C",)),
@@ -75,7 +75,7 @@ class ObjectModel:
     points_cov_mm2: np.ndarray = _arr("points_cov_mm2")  # (N, 3, 3) covariance
     points_modality: np.ndarray = _arr("points_modality")  # (N,) 0 = OA, 1 = US
     points_scan: np.ndarray = _arr("points_scan")        # (N,) index into sources
-    points_index: np.ndarray = _arr("points_index")      # (N,) point_index in that scan
+    points_row: np.ndarray = _arr("points_row")        # (N,) its row in that scan file
     points_outlier: np.ndarray = _arr("points_outlier")  # (N,) rejected by the fusion
     vertices_mm: np.ndarray = _arr("vertices_mm")        # (V, 3) object frame
     faces: np.ndarray = _arr("faces")                    # (F, 3) vertex indices
@@ -123,7 +123,7 @@ class ObjectModel:
         _in_range("points_modality", self.points_modality, 0, 1, "0 (OA) or 1 (US)")
         _in_range("points_scan", self.points_scan, 0, len(self.sources) - 1,
                   f"an index into the {len(self.sources)} sources")
-        _in_range("points_index", self.points_index, 0, None, "a point index >= 0")
+        _in_range("points_row", self.points_row, 0, None, "a row index >= 0")
         _in_range("faces", self.faces, 0, n["V"] - 1, f"a vertex index below {n['V']}")
         _in_range("support", self.support, 0, None, "a count >= 0")
         length = np.linalg.norm(self.normals, axis=1)

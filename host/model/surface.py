@@ -40,6 +40,8 @@ from skimage.measure import marching_cubes
 from .fuse import local_fit, neighbourhood_radius
 
 _CHUNK = 20000
+CURVATURE_PRIOR = 1e-3  # local_fit's prior on the quadratic terms: a vertex whose points span
+# two rows (a scan's levels) in one direction gets a plane there, not a singular fit
 CHI2_SIGNIFICANT = 2.0   # inflate sigma by chi^2 where it exceeds 1 by this many of its stds
 LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): a bias term
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
@@ -62,10 +64,31 @@ def point_normals(P_mm: np.ndarray, view_dir: np.ndarray, k: int = 16,
                   radius_mm: float = 0.0, max_k: int = 64) -> np.ndarray:
     """Unit normals (k, 3) of points (mm): the PCA normal of each point's neighbours - its k
     nearest, or with radius_mm all within it (at most max_k, at least k) - signed to point
-    toward view_dir (unit vectors from each point toward the sensor). A radius matters on
-    turntable data: many lines cross one level, so a point's k nearest can all lie on its own
-    row (collinear: no normal); within a radius spanning levels they do not."""
+    toward view_dir (unit vectors from each point toward the sensor). With a radius the
+    points are first thinned to cells of radius / 4 (their centroids; each point takes its
+    cell's normal): on turntable data many lines cross one level, so a point's nearest
+    neighbours, however many, can all lie on its own row (collinear: no normal); thinned,
+    those within the radius span the levels."""
     P = np.asarray(P_mm, float)
+    if radius_mm > 0 and len(P):
+        cell = radius_mm / 4
+        _, first, inv = np.unique(np.floor(P / cell).astype(np.int64), axis=0,
+                                  return_index=True, return_inverse=True)
+        inv = inv.ravel()
+        C = np.zeros((len(first), 3))
+        np.add.at(C, inv, P)
+        C /= np.bincount(inv, minlength=len(first))[:, None]
+        out = _pca_normals(C, k, radius_mm, max_k)[inv]
+    else:
+        out = _pca_normals(P, k, 0.0, k)
+    flip = np.einsum("ki,ki->k", out, np.asarray(view_dir, float)) < 0
+    out[flip] *= -1
+    return out
+
+
+def _pca_normals(P: np.ndarray, k: int, radius_mm: float, max_k: int) -> np.ndarray:
+    """Unsigned PCA normals of points: of their k nearest, or all within radius_mm (at most
+    max_k, at least the k nearest)."""
     n = len(P)
     kk = min(max(k, max_k if radius_mm > 0 else k), n)
     dist, idx = cKDTree(P).query(P, k=kk, workers=-1)
@@ -82,8 +105,6 @@ def point_normals(P_mm: np.ndarray, view_dir: np.ndarray, k: int = 16,
         Q = Q * w
         _, vec = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
         out[lo:lo + _CHUNK] = vec[:, :, 0]
-    flip = np.einsum("ki,ki->k", out, np.asarray(view_dir, float)) < 0
-    out[flip] *= -1
     return out
 
 
@@ -212,7 +233,8 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         if len(sel) == 0:
             continue
         ii = np.where(valid[sel], idx[sel], 0)
-        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel])
+        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel],
+                      curvature_prior=CURVATURE_PRIOR)
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)

@@ -12,7 +12,8 @@ MODS = ("oa", "us")
 
 
 def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
-    """Per modality: object-frame points (mm) and their point index, level, angle, d, S, and
+    """Per modality: object-frame points (mm) and their row in the file's data (`row`: a fly
+    line's shots share one point index), point index, level, angle, d, S, and
     d_std (mm): each distance's own standard deviation (ranging.distance_std_mm) from its
     SNR and the scan's ranging setup (NaN if the file carries no readable setup)."""
     cal = scan.calibration
@@ -30,7 +31,8 @@ def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
         P = object_points(X, p["theta_deg"][ok], np.asarray(cal["n"]), np.asarray(cal["X_R"]))
         std = (distance_std_mm(setup, m, p[f"snr_{m}_db"][ok])
                if setup is not None and m in setup.cals else np.full(ok.sum(), np.nan))
-        out[m] = {"P": P, "index": p["point_index"][ok], "level": p["level"][ok],
+        out[m] = {"P": P, "row": np.flatnonzero(ok), "index": p["point_index"][ok],
+                  "level": p["level"][ok],
                   "theta_deg": p["theta_deg"][ok], "d": d[ok], "d_std": std, "S": S, "X": X}
     return out
 

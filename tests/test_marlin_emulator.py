@@ -164,3 +164,22 @@ def test_a_quick_stop_takes_the_planners_position_from_the_steppers():
     h.send(f"G1 X{(stopped + 3.2) / 80:.4f}")
     h.send("M400")
     assert h.steps(0, t) == 0 and h.where()[1]["X"] == stopped
+
+
+def test_homing_another_axis_counts_the_owed_steps_without_taking_them():
+    """G28 X re-syncs the planner's position (and the counts) of every axis from the
+    commanded one (sync_plan_position): A0.5 (4 steps, dropped) is then counted, never
+    taken, and the table stays 4 steps short of the counts from there on."""
+    h = at_x100()
+    h.send("G1 A0.5")
+    assert "Count X:-800 " in h.send("G28 X")[0] and h.where()[1]["A"] == 4
+    assert h.m.position()[3] == 0.0  # the table did not turn
+    t = h.t
+    h.send("G1 A0")  # 4 steps back from the planner's 4: dropped again
+    h.send("M400")
+    assert h.steps(3, t) == 0 and h.where()[1]["A"] == 4
+    h.send("G1 A2")  # 17.8 -> 18: 14 steps from 4
+    h.send("M400")
+    assert h.steps(3, t) == 14 and h.where()[1]["A"] == 18
+    assert h.m.position()[3] == 14 / h.m.planner.spu[3]
+    assert h.send("M114 R")[0].startswith("X:-10.00 Y:0.00 Z:0.00 A:2.02 ")  # from counts

@@ -110,3 +110,19 @@ def test_g92_after_a_dropped_move_leaves_the_planner_and_the_owed_steps(bench):
     assert bench.moves("G1 X50.04") == [6, 0, 0, 0]  # native 100.08: 6
     assert bench.where()[1]["X"] == 8006
     bench.send("G92 X100.08")  # back to the logical frame of the other tests
+
+
+def test_homing_another_axis_counts_the_owed_steps_without_taking_them(bench):
+    """G28 X re-syncs every axis's planner position and count from the commanded position
+    (sync_plan_position): the 4 steps of a dropped A0.5 are counted, never taken; A0 is then
+    4 steps from the planner's position, dropped too, and A2 takes 14, not 18."""
+    bench.at_x100()
+    bench.send("G1 A0.5")
+    home = bench.send("G28 X")
+    assert "Count X:-800 Y:10000 Z:4000 A:4" in home[0], home
+    assert bench.where()[1]["A"] == 4
+    assert bench.moves("G1 A0") == [0, 0, 0, 0]
+    assert bench.where()[1]["A"] == 4
+    assert bench.moves("G1 A2") == [0, 0, 0, 14]
+    assert bench.where()[1]["A"] == 18
+    bench.moves("G1 A0")  # the counts back to 0, the table 4 steps short of it

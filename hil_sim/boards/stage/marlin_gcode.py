@@ -100,10 +100,10 @@ class GcodeMixin:
         after G92 and G28 prints them)."""
         self.planner.update(self.now)
         if live:
-            raw = self.planner.position()
+            raw = self.planner.count_position()
             pos_v, counts_v = raw + self.offset, self._counts(raw)
         elif live_counts:
-            pos_v, counts_v = self.current, self._counts(self.planner.position())
+            pos_v, counts_v = self.current, self._counts(self.planner.count_position())
         else:
             pos_v = self.current
             counts_v = self.planner.pos + np.rint(self.native0 * self.planner.spu).astype(int)
@@ -112,7 +112,7 @@ class GcodeMixin:
         return f"{pos} Count {counts}"
 
     def _sync_current_from_steppers(self) -> None:
-        self.current = self.planner.position() + self.offset
+        self.current = self.planner.count_position() + self.offset
 
     def _target(self, words: dict) -> np.ndarray:
         target = self.current.copy()
@@ -175,6 +175,12 @@ class GcodeMixin:
                 self.current[i] = Z_AFTER_HOMING_MM
                 self.planner.set_axis(i, round((Z_AFTER_HOMING_MM - self.offset[i]) *
                                                self.planner.spu[i]))
+            # sync_plan_position(): every other axis's planner position and count from its
+            # commanded one, so steps a dropped move left owed are counted, never taken
+            synced = self.planner.to_steps(self.current - self.offset)
+            for i, a in enumerate(self._axes()):
+                if a not in which:
+                    self.planner.sync_axis(i, int(synced[i]))
             self.out.append(self._position_line(live_counts=True))
 
         self._block("sync", t, n, then=done)
@@ -233,12 +239,12 @@ class GcodeMixin:
                         return "".join(f" {a}:{int(v)}" for a, v in zip(axes, values))
                     return "".join(f" {a}:{float(np.float32(v)): .{digits}f}"  # "Y: 0.000"
                                    for a, v in zip(axes, values))
-                from_steps = self.planner.position() + self.native0
+                from_steps = self.planner.count_position() + self.native0
                 self.out += [  # report_current_position(): the steppers' counts
                     self._position_line(live_counts=True), "",
                     "Logical:" + fmt("XYZ", self.current),
                     "Raw:    " + fmt("XYZ", native),
-                    "Stepper:" + fmt(self._axes(), self._counts(self.planner.position()), 0),
+                    "Stepper:" + fmt(self._axes(), self._counts(self.planner.count_position()), 0),
                     "FromStp:" + fmt(self._axes(), from_steps),
                     "Diff:   " + fmt(self._axes(), from_steps - native)]
             self._block("sync", self.now, n, then=detail)

@@ -7,7 +7,9 @@ than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
 BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; the running block is never
 re-planned; the dominant axis steps at the profile's rate and the others follow by
 Bresenham; a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its
-steps left to the next move (the planner keeps its own position, apart from the steppers').
+steps left to the next move (the planner keeps its own position, apart from the steppers'),
+and a re-sync of the planner's position while steps are owed (homing another axis) sets the
+counts there without a step: the counts and where the carriage is then differ (`slip`).
 Positions are in mm (X, Y, Z) and degrees (A); the steppers hold whole steps.
 Not modelled: S-curve acceleration (off in the patch) and the ISR's tick quantisation.
 """
@@ -53,6 +55,7 @@ class Move:
     t0: float | None = None      # when its first step was taken (None: still queued)
     dropped: bool = False        # too few steps: never queued (MIN_STEPS_PER_SEGMENT)
     cut: float = math.inf        # a quick stop ended it here (s)
+    slip: np.ndarray | None = None  # the planner's slip when it was queued (steps)
     _edges: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -168,7 +171,9 @@ class Planner:
     """The planner queue, the stepper and the step counts of a 4-axis stage."""
 
     limits: MachineLimits
-    steps: np.ndarray = field(init=False)       # where the steppers are (last update)
+    steps: np.ndarray = field(init=False)       # the steppers' counts (last update)
+    slip: np.ndarray = field(init=False)  # counts minus where the carriage is (steps): what
+    # a re-sync with steps owed (sync_plan_position) put on the counts without a step
     pos: np.ndarray = field(init=False)  # Marlin's planner.position: the last queued block's
     # target (steps); a dropped move leaves it, so the next move takes the dropped steps too
     queue: list[Move] = field(default_factory=list)
@@ -177,6 +182,7 @@ class Planner:
     def __post_init__(self) -> None:
         self.steps = np.zeros(len(self.limits.axes), dtype=np.int64)
         self.pos = self.steps.copy()
+        self.slip = self.steps.copy()
         self.spu = np.asarray(self.limits.steps_per_unit, dtype=float)
         self.vmax = np.asarray(self.limits.max_feedrate, dtype=float)
         self.amax = np.asarray(self.limits.max_acceleration, dtype=float)
@@ -192,7 +198,16 @@ class Planner:
         return self.limits.block_buffer_size - len(self.queue)
 
     def set_axis(self, axis: int, count: int) -> None:
-        """Set an axis's planner position and stepper count (homing; the queue is empty)."""
+        """Set an axis's planner position and stepper count where the carriage is (homing;
+        the queue is empty)."""
+        self.pos[axis] = self.steps[axis] = count
+        self.slip[axis] = 0
+
+    def sync_axis(self, axis: int, count: int) -> None:
+        """Marlin's sync_plan_position with the queue empty: the planner's position and the
+        stepper's count set to `count`, the carriage where it is (steps a dropped move left
+        owed are then never taken)."""
+        self.slip[axis] += count - self.steps[axis]
         self.pos[axis] = self.steps[axis] = count
 
     def line_to(self, now: float, target_steps: np.ndarray, feed_mm_s: float) -> Move:
@@ -220,7 +235,8 @@ class Planner:
                 a = min(a, float(np.min(np.where(axis_unit > 0, self.amax / axis_unit,
                                                  np.inf))))
         move = Move(start_steps.copy(), target_steps.copy(), length, max(v, 1e-6),
-                    max(a, 1e-6), unit, added=now, after_idle=not self.queue)
+                    max(a, 1e-6), unit, added=now, after_idle=not self.queue,
+                    slip=self.slip.copy())
         if move.n < MIN_STEPS_PER_SEGMENT:
             move.dropped = True  # Marlin's _populate_block bails out before the position
             return move          # update: the steps stay owed to the next move
@@ -317,7 +333,11 @@ class Planner:
         self.pos = self.steps.copy()  # quickstop_stepper(): sync_plan_position()
 
     def position(self) -> np.ndarray:
-        """Where the steppers are, in mm and degrees."""
+        """Where the carriage is, in mm and degrees."""
+        return (self.steps - self.slip) / self.spu
+
+    def count_position(self) -> np.ndarray:
+        """The steppers' counts, in mm and degrees (what Marlin reports from the steppers)."""
         return self.steps / self.spu
 
     def _covering(self, t: float) -> Move | None:
@@ -331,11 +351,11 @@ class Planner:
         return None
 
     def position_at(self, t: float) -> np.ndarray:
-        """Where the steppers were at time t (s), at most HISTORY blocks back (mm, deg)."""
+        """Where the carriage was at time t (s), at most HISTORY blocks back (mm, deg)."""
         m = self._covering(t)
         if m is None:
             return self.position()
-        return (m.start + m.steps_after(t - m.t0)) / self.spu
+        return (m.start + m.steps_after(t - m.t0) - m.slip) / self.spu
 
     def step_edges(self, axis: int, t_from: float, t_to: float) -> np.ndarray:
         """Times (s) of the STEP pulses of `axis` in (t_from, t_to], in order."""

@@ -141,7 +141,11 @@ def main() -> int:
         surface = reachable_truth(truths, sim.scene.v, sim.scene.n, SPACING_MM, z_band)
         sim.close()
         try:
-            plan = replace(plan_for_size(obj, size, round_, mode="auto"), levels_mm=levels)
+            material = SCENES[obj]()[0].material
+            modality = "us" if material in ("glass", "steel") else "oa" \
+                if material == "foam" else "both"
+            plan = replace(plan_for_size(obj, size, round_, material, "auto", modality),
+                           levels_mm=levels)
             plan.validate()
             scan = one_scan(obj, "auto", plan, setup, args.seed, args.speed, z_band,
                             {"surface": surface}, out, 3600.0)

@@ -154,6 +154,21 @@ def test_the_commands_build_show_and_export(built, tmp_path, capsys):
     assert "status: ok" in shown  # v1 and v2 are of the same scans: neither is stale
 
 
+def test_db_show_html_and_the_parquet_export_link_the_model(built, tmp_path, capsys):
+    import pandas as pd
+
+    db, _ = built
+    page = tmp_path / "can.html"
+    assert main(["db", "show", "can", "--db", str(db), "--html", str(page)]) == 0
+    assert 'class="dmdsm-model"' in page.read_text()
+    out = tmp_path / "w.parquet"
+    assert main(["db", "export", "--db", str(db), "--format", "parquet", "-o", str(out)]) == 0
+    latest = max(int(p.stem[1:]) for p in (db / "models" / "can").glob("v*.h5"))
+    assert set(pd.read_parquet(out)["model"].astype(str)) == {f"models/can/v{latest}.h5"}
+    assert main(["db", "show", "nothing", "--db", str(db), "--html", str(page)]) == 2
+    assert "no model" in capsys.readouterr().err
+
+
 def test_the_ply_carries_sigma_support_and_material_per_vertex(built):
     _, m = built
     data = ply_bytes(m)

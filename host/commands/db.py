@@ -16,7 +16,7 @@ from ..scan.catalogue import CatalogueError, find_scan, list_scans, rebuild, ver
 from ..scan.points import MODS, scan_points, validate_block
 from ..scan.reconstruct import ply_text
 from ..scan.scanfile import ScanData, ScanFileError, read_scan, scan_summary
-from .errors import check_output
+from .errors import CliError, check_output
 
 
 def load_truth(path: Path) -> tuple[float, float]:
@@ -56,8 +56,13 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--models", action="store_true",
                    help="the 3D models instead (one line per object and version, with whether "
                         "their scans changed since)")
-    q = psub.add_parser("show", parents=[common], help="one scan's metadata and plan")
-    q.add_argument("scan_id", help="scan id (`dmdsm db list`)")
+    q = psub.add_parser("show", parents=[common], help="one scan's metadata and plan, or with "
+                        "--html an object's 3D model as a page")
+    q.add_argument("scan_id", metavar="ID", help="scan id (`dmdsm db list`); with --html the "
+                   "object id (`dmdsm db list --models`)")
+    q.add_argument("--html", type=Path, help="write the object's latest 3D model as a "
+                   "self-contained interactive page (rotate, zoom, colour by material, sigma "
+                   "or support; no network needed to open it)")
     q = psub.add_parser("export", parents=[common],
                         help="one scan's points as CSV and/or PLY, or scans' waveforms, poses, "
                              "distances and labels as Parquet (--format parquet)")
@@ -137,6 +142,8 @@ def cmd_db(args: argparse.Namespace) -> int:
         if args.format == "parquet":
             return _export_parquet(args)
         args.scan_id = _one_scan_id(args)
+    if args.action == "show" and args.html:
+        return _show_model(args)
     scan = _scan_file(args)
     if args.action == "show":
         s = scan_summary(scan)
@@ -183,6 +190,41 @@ def _one_scan_id(args: argparse.Namespace) -> str:
     return args.scan_id[0]
 
 
+def model_links(db: Path) -> dict[str, str]:
+    """Per object, its latest 3D model file relative to the database ("" for none), with
+    " (stale)" where its scans changed since: the Parquet export's `model` column."""
+    from ..model.store import list_models
+
+    latest: dict[str, dict] = {}
+    for r in list_models(db):
+        if r.get("version") and r["version"] >= latest.get(r["object_id"], {}).get("version", 0):
+            latest[r["object_id"]] = r
+    out = {}
+    for oid, r in latest.items():
+        try:
+            rel = str(Path(r["path"]).resolve().relative_to(Path(db).resolve()))
+        except ValueError:
+            continue
+        out[oid] = rel + ("" if r["status"] == "ok" else " (stale)")
+    return out
+
+
+def _show_model(args: argparse.Namespace) -> int:
+    """`db show OBJECT --html FILE`: the object's latest model as a page (commands/model)."""
+    from ..model.store import ModelError, load_object_model, staleness
+    from .model import write_model_page
+
+    try:
+        model = load_object_model(args.db, args.scan_id)
+        write_model_page(model, args.html, "; ".join(staleness(args.db, model)))
+    except (ModelError, ValueError) as e:
+        raise CliError(str(e)) from None
+    print(json.dumps({"object_id": model.object_id, "version": model.version,
+                      "html": str(args.html)}) if args.json else
+          f"wrote {args.html}: model of {shown(model.object_id)} v{model.version}")
+    return 0
+
+
 def _export_parquet(args: argparse.Namespace) -> int:
     """`db export --format parquet -o FILE [--object ID] [SCAN_ID ...]`: the summary on
     stdout, each scan left out on stderr."""
@@ -197,7 +239,8 @@ def _export_parquet(args: argparse.Namespace) -> int:
     check_output(args.output, flag="-o")
     try:
         s = export_parquet(args.db, args.output, object_id=args.object,
-                           scan_ids=list(dict.fromkeys(args.scan_id)) or None, model_links={})
+                           scan_ids=list(dict.fromkeys(args.scan_id)) or None,
+                           model_links=model_links(args.db))
     except (CatalogueError, ExportError) as e:
         raise CliError(str(e)) from None
     for k in s["skipped"]:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..calibration.result import load_calibration
+from ..files import one_line
 from ..links.config import load_config, resolve_port
 from ..links.sensor import SensorClient
 from ..links.stage import StageClient
@@ -42,6 +43,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "constant-speed move, shots placed by counted steps), or auto (a "
                         "first look, then lines that follow the outline; docs/scanning.md)")
     p.add_argument("--no-home", action="store_true", help="the stage is already homed")
+    p.add_argument("--no-model", action="store_true",
+                   help="auto: do not build the object's 3D model after the scan")
+    p.add_argument("--classifier", type=Path,
+                   help="auto: a `dmdsm classify train` model for the 3D model's materials")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_scan)
 
@@ -134,4 +139,25 @@ def cmd_scan(args: argparse.Namespace) -> int:
                   f"outline (the rest kept the bounding cylinder and is not counted)")
             for why in a["lines_left_out"]:  # said, not hidden
                 print(f"auto: a line was left out: {why}")
+    if run.auto and not args.no_model:
+        _build_model(args.db, plan.object_id, args.classifier, args.json)
     return 0
+
+
+def _build_model(db: Path, object_id: str, classifier: Path | None, as_json: bool) -> None:
+    """After an auto scan: the object's 3D model from all its scans (a new version). A model
+    that cannot be built is said in one line; the scan stands."""
+    from ..model.build import build_object_model
+    from ..model.store import ModelError, write_model
+
+    try:
+        model = build_object_model(db, object_id, classifier=classifier)
+        path = write_model(db, model)
+    except (ModelError, ValueError) as e:
+        print(f"dmdsm: the scan is saved, but no 3D model was built: {one_line(str(e), 300)}; "
+              f"`dmdsm model build {object_id} --db {db}` tries again", file=sys.stderr)
+        return
+    s = model.summary
+    if not as_json:
+        print(f"model: {object_id} v{model.version}, {s['vertices']} vertices "
+              f"({100 * s['supported_share']:.1f} % supported), {path}")

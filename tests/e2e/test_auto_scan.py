@@ -108,5 +108,21 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     idx = sorted(set(whole.points["point_index"].tolist()))
     a = summary["auto"]
     assert idx == list(range(n_look + a["lines"] + a["hole_lines"]))
+    # the command built the object's 3D model from it: on the true block where it measured
+    # (the first look's levels are 10 mm apart here: between them the surface is closed
+    # across, not measured; bench/model.py gives the figures of a whole auto plan)
+    from scipy.spatial import cKDTree
+
+    from dmdsm.host.model.store import load_object_model
+
+    model = load_object_model(tmp_path / "db", "aluminium_block")
+    assert [s["scan_id"] for s in model.sources] == ["cut"]
+    near = cKDTree(model.points_mm).query(model.vertices_mm)[0] < 0.5
+    V = model.vertices_mm[model.supported & near]
+    assert len(V) > 100
+    truth = emu.sim.truth_objects()[0]
+    d = np.abs(truth.signed_distance(V))
+    # (a box's edges are rounded over the fit's radius: bench/model.py, docs/scanning.md)
+    assert np.median(d) < 0.2, np.percentile(d, [50, 75, 95])
     np.testing.assert_array_equal(whole.points["stage_position_mm"][:cut.n_points],
                                   cut.points["stage_position_mm"])

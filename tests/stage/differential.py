@@ -143,6 +143,7 @@ def same(emulator: list[str], marlin: list[str]) -> bool:
 # to both stages in lock-step; the steps each one takes are counted from its STEP pins (the
 # emulator's step log, the AVR's pin edges in simavr) and compared in time.
 MACHINE = load_machine()
+MIN_STEPS_PER_SEGMENT = 6  # Marlin's Configuration_adv.h
 SPU = np.asarray(MACHINE.steps_per_unit, float)
 AXES = "XYZA"
 SAMPLE_S = 0.0005  # position samples (s): both stages on the same grid from the first line
@@ -183,6 +184,8 @@ class Group:
     kind: str
     start: np.ndarray
     moves: list[tuple[np.ndarray, int | None, float]] = field(default_factory=list)
+    planner0: np.ndarray | None = None  # the planner's position at the start (steps; None:
+    # start's): a move Marlin dropped (< MIN_STEPS_PER_SEGMENT) left steps owed
 
     @property
     def end(self) -> np.ndarray:
@@ -205,10 +208,22 @@ class Group:
             prev = q
         return out
 
+    def planner_path(self) -> np.ndarray:
+        """(moves + 1, axes): the planner's position (steps) at the start and after each
+        move: a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped and
+        leaves it, its steps going with the next move."""
+        p = to_steps(self.start) if self.planner0 is None else self.planner0.copy()
+        out = [p]
+        for q, _, _ in self.moves:
+            if np.max(np.abs(to_steps(q) - p)) >= MIN_STEPS_PER_SEGMENT:
+                p = to_steps(q)
+            out.append(p)
+        return np.array(out)
+
     def block_steps(self) -> np.ndarray:
-        """(moves, axes): the steps of each move (absolute), as both stages count them."""
-        path = np.array([to_steps(self.start)] + [to_steps(q) for q, _, _ in self.moves])
-        return np.abs(np.diff(path, axis=0))
+        """(moves, axes): the steps of each move (absolute), as both stages count them (none
+        for a dropped move)."""
+        return np.abs(np.diff(self.planner_path(), axis=0))
 
 
 def to_steps(p: np.ndarray) -> np.ndarray:
@@ -363,6 +378,8 @@ def motion_groups(rng: random.Random, n: int) -> list[Group]:
             i = rng.randrange(1, len(g.moves))
             q, f, _ = g.moves[i]
             g.moves[i] = (q, f, rng.uniform(0.05, 0.6))
+        if out:
+            g.planner0 = out[-1].planner_path()[-1]
         out.append(g)
         at = g.end
     return out
@@ -467,8 +484,12 @@ class Recording:
         cum = np.cumsum(steps, axis=0)
         if any(len(e) != c for e, c in zip(edges, cum[-1])):
             return None
-        return np.array([max(edges[a][cum[k, a] - 1] for a in range(len(AXES))
-                             if steps[k, a]) for k in range(len(steps))])
+        out, end = [], 0.0
+        for k in range(len(steps)):  # a dropped move (no steps) ends with the one before
+            end = max((edges[a][cum[k, a] - 1] for a in range(len(AXES)) if steps[k, a]),
+                      default=end)
+            out.append(end)
+        return np.array(out)
 
     def counts(self) -> list[int]:
         """STEP edges per axis."""

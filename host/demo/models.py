@@ -17,7 +17,7 @@ from .session import TITLES, Demo
 # level would take hours); the quick demo takes the first
 CAMPAIGN = ("soda_can", "tissue_box", "plastic_tub", "apple_red", "foam_cup", "glass_jar",
             "steel_can")
-LEVELS = 4           # the auto scans' levels, 2 mm apart about half the height (at most 40)
+LEVELS = 3           # the auto scans' levels, 2 mm apart about half the height (at most 40)
 LEVELS_QUICK = 3
 SPACING_MM = 2.0
 

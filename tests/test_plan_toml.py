@@ -106,3 +106,19 @@ def test_a_value_of_the_wrong_kind_in_a_plan_file_is_named(tmp_path):
     path.write_text(base + "average = 16.0\nstep_mm = 2\n")
     plan = load_plan(path)
     assert plan.average == 16 and isinstance(plan.average, int) and plan.step_mm == 2
+
+
+def test_a_hostile_plan_file_is_one_line(tmp_path):
+    """Nested thousands deep, not UTF-8, or huge: a PlanError naming the fix, no traceback."""
+    import pytest
+
+    from dmdsm.host.scan.plan import MAX_PLAN_BYTES, PlanError
+
+    cases = {"deep.toml": (b"a = " + b"[" * 100_000, "nests arrays or tables too deeply"),
+             "utf16.toml": ('[sample]\nobject_id = "x"\n'.encode("utf-16"), "not UTF-8"),
+             "huge.toml": (b"# " + b"x" * MAX_PLAN_BYTES, "larger than")}
+    for name, (data, says) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(PlanError, match=says) as e:
+            load_plan(tmp_path / name)
+        assert "\n" not in str(e.value)

@@ -240,15 +240,27 @@ def _sensor_limits() -> dict[str, tuple[int, int]]:
     return {"samples": f["n_samples"].allowed(), "average": f["n_average"].allowed()}
 
 
+MAX_PLAN_BYTES = 1 << 20  # a plan file's size
+
+
 def load_plan(path: Path, **overrides: object) -> ScanPlan:
     """Read a plan TOML ([sample], [object], [scan]); flags given as overrides win."""
     try:
         with open(path, "rb") as f:
-            doc = tomllib.load(f)
+            data = f.read(MAX_PLAN_BYTES + 1)
+        if len(data) > MAX_PLAN_BYTES:
+            raise PlanError(f"{path} is larger than {MAX_PLAN_BYTES >> 10} KiB: a plan is a "
+                            f"short TOML file (docs/scanning.md); is it the right file?")
+        doc = tomllib.loads(data.decode("utf-8"))
     except OSError as e:
         raise PlanError(f"cannot read plan {path}: {e.strerror}") from None
+    except UnicodeDecodeError:
+        raise PlanError(f"{path} is not UTF-8 text: save the plan as UTF-8") from None
     except tomllib.TOMLDecodeError as e:
         raise PlanError(f"{path} is not valid TOML: {e}") from None
+    except RecursionError:  # [[[[... or {a={a=... nested thousands deep
+        raise PlanError(f"{path} nests arrays or tables too deeply for a plan: give "
+                        f"[sample] and [scan] tables of plain values") from None
     flat: dict[str, object] = {}
     for section in ("sample", "object", "scan"):
         flat.update(doc.get(section, {}))

@@ -1,8 +1,8 @@
 """The dmdsm host as a Python API: open the boards, calibrate, scan, reconstruct, classify.
 
 The layers, top to bottom (docs/architecture.md): `entry` (the `dmdsm` command) -> `demo` ->
-`commands` -> `report` -> `classify` -> `scan` -> `calibration` -> `ranging` -> `links` ->
-`files` | `version`.
+`commands` -> `report` -> `model` -> `classify` -> `scan` -> `calibration` -> `ranging` ->
+`links` -> `files` | `version`.
 This face exports the objects a notebook composes; they load on first use, so importing
 one submodule does not import the whole pipeline. The procedures take any stage and sensor
 that satisfy the Protocols Stage / StageMotion and Sensor / ShotSensor / StreamSensor (the

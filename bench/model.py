@@ -88,8 +88,10 @@ def judge(model, truths: list, surface: np.ndarray, z_band: tuple) -> dict:
         prob = model.material_prob[sup][inb]
         has = np.isfinite(prob).all(axis=1)
         named = np.array(model.classes)[np.nan_to_num(prob[has]).argmax(axis=1)]
-        truth = np.array([truths[int(j)].material_at(V[i:i + 1])[0]
-                          for i, j in zip(np.flatnonzero(has), k[has])])
+        truth = np.empty(int(has.sum()), dtype=object)
+        for j in np.unique(k[has]):  # one nearest-face query per object, not per vertex
+            sel = k[has] == j
+            truth[sel] = truths[int(j)].material_at(V[has][sel])
         out["material_share"] = float(has.mean())
         out["material_right"] = float((named == truth).mean()) if has.any() else None
         out["material_truth"] = sorted(set(truth.tolist()))

@@ -61,8 +61,10 @@ def judge(model: object, truths: list, z_band: tuple[float, float]) -> dict:
     mat = model.material[sup]
     has = mat != ""
     if has.any():
-        truth = np.array([truths[int(j)].material_at(V[i:i + 1])[0]
-                          for i, j in zip(np.flatnonzero(has), k[has])])
+        truth = np.empty(int(has.sum()), dtype=object)
+        for j in np.unique(k[has]):  # one nearest-face query per object, not per vertex
+            sel = k[has] == j
+            truth[sel] = truths[int(j)].material_at(V[has][sel])
         out["material_right"] = float((mat[has] == truth).mean())
     return out
 

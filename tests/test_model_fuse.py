@@ -70,6 +70,7 @@ def sample(S, d, th, src, scale, rng, m):
 @settings(max_examples=4)
 @given(seed=st.integers(0, 2 ** 32 - 1), scale=st.floats(0.3, 3.0))
 @pytest.mark.parametrize("src", ["d", "v", "n", "X_R", "stage", "theta"])
+@example(seed=7719, scale=2.0)  # theta: a radial variance of 1.3e-8 mm^2 (second order)
 def test_each_source_matches_monte_carlo(src, seed, scale):
     """Along the 3 axes and random directions u, the sample variance of u . P over 2000 draws
     matches u^T cov u within sampling error (6 sigma of a variance: 6 sqrt(2/m))."""
@@ -85,7 +86,9 @@ def test_each_source_matches_monte_carlo(src, seed, scale):
         want = np.einsum("i,kij,j->k", u, cov, u)
         got = np.var(X @ u, axis=0)
         tr = np.trace(cov, axis1=1, axis2=2)
-        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-6 * tr), (got, want)
+        # + 1e-5 tr: a direction whose first-order variance vanishes (radial, for the table
+        # angle) still has second-order terms, which first-order propagation leaves out
+        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
 
 
 def test_parts_sum_and_split():

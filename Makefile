@@ -168,6 +168,7 @@ bench: deps firmware
 	$(PY) bench/scan.py
 	$(PY) bench/sensor_limits.py
 	$(PY) bench/scan_coverage.py --quick
+	$(PY) bench/model.py --quick --band-mm 8
 	$(PY) bench/classify.py
 
 ## ---------------------------------------------------------------- the real Marlin

@@ -28,7 +28,7 @@ BAND_MM = (10.0, 30.0)         # the heights scanned (object frame z)
 STD_MM = {"oa": 0.06, "us": 0.15}  # the distances' noise (the paper's figures)
 
 
-def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None):
+def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fly=False):
     """A finished scan of a cylinder of RADIUS_MM about the table's axis: per table angle and
     level a line across it, both modalities' distances with the noise their SNR gives."""
     setup = true_setup(SensorModel())
@@ -59,7 +59,8 @@ def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None):
                   distance_us_mm=d + rng.normal(0, STD_MM["us"], k),
                   snr_oa_db=np.full(k, snr["oa"]), snr_us_db=np.full(k, snr["us"]),
                   phase_time_s=np.zeros((k, len(PHASES))), host_time=np.zeros(k),
-                  point_index=np.arange(k))
+                  point_index=(np.searchsorted(levels, z) + len(levels) * (theta // step_deg)
+                               ).astype(int) if fly else np.arange(k))
     i = k
     w.close("complete")
     record(db, scan_id, n_planned=i, content_hash=file_hash(path))
@@ -115,6 +116,18 @@ def test_a_gross_error_is_removed_as_an_outlier(tmp_path):
     flagged = m.points_outlier[(m.points_modality == 0)]
     assert flagged[np.isin(idx, range(100, 105))].all()
     assert flagged.sum() <= 5 + 0.01 * len(flagged)
+
+
+def test_a_fly_lines_points_are_named_by_their_row_not_their_shared_point_index(tmp_path):
+    """In fly and auto scans a line's waveforms share one point_index: the model names each
+    point by its row in the file, so every waveform keeps its own point (and material)."""
+    connect(tmp_path, create=True).close()
+    path = cylinder_scan(tmp_path, step_deg=30.0, fly=True)
+    m = build_object_model(tmp_path, "can")
+    rows = {mod: np.sort(m.points_row[m.points_modality == mod]) for mod in (0, 1)}
+    with h5py.File(path, "r") as f:
+        n = f["/entry/data/point_index"].shape[0]
+    assert all(np.array_equal(r, np.arange(n)) for r in rows.values())
 
 
 def test_vertex_materials_average_the_waveforms_near_each_vertex():

@@ -4,11 +4,11 @@ queued back to back, read from the STEP pins: no stop where a line goes straight
 at the junction-deviation speed, a stop at a reversal, and the time a trapezoid gives."""
 
 import math
-import os
 
 import numpy as np
 import pytest
-from differential import HOME, SPU, Group, Stage, run_group, send_both
+from differential import HOME, SPU, Group, run_group
+from pin_bench import PinBench, bench_fixture
 
 from dmdsm.marlin_patch import load_machine
 
@@ -29,22 +29,12 @@ def span_bounds(expected: float, a: float, steps_per_mm: float) -> tuple[float, 
             expected * (1 + TIME_REL) + TIME_S)
 
 
-class Bench:
-    """The stage under test in-process, homed, driven in simulated time."""
+class Bench(PinBench):
+    """The stage under test (pin_bench.PinBench) with this module's moves."""
 
     def __init__(self) -> None:
-        self.stage = Stage(os.environ.get("DMDSM_STAGE_FIRMWARE", ""))
-        self.n = 0
-        for cmd in ("G28", "G90", "M400"):
-            self.send(cmd)
+        super().__init__()
         self.at = HOME.copy()
-
-    def send(self, cmd: str) -> list[str]:
-        """One numbered line, answered."""
-        self.n += 1
-        (replies,) = send_both([self.stage], cmd, self.n)
-        assert replies and replies[-1].startswith(f"ok N{self.n} "), (cmd, replies)
-        return replies
 
     def go(self, start: tuple[float, float, float, float]) -> None:
         """Stand at start (X Y Z A), idle."""
@@ -64,14 +54,7 @@ class Bench:
         return g, rec[0]
 
 
-@pytest.fixture(scope="module")
-def bench():
-    """The stage under test, homed once for the module."""
-    if os.environ.get("DMDSM_STAGE_PORT"):
-        pytest.skip("a real board's STEP pins are not recorded here")
-    b = Bench()
-    yield b
-    b.stage.close()
+bench = bench_fixture(Bench)
 
 
 def trapezoid_s(length: float, v: float, a: float, v0: float = 0.0, v1: float = 0.0) -> float:

@@ -3,32 +3,17 @@ Marlin under simavr with DMDSM_STAGE_FIRMWARE, as `make check-marlin` runs it), 
 STEP pins and M114: a block of fewer than MIN_STEPS_PER_SEGMENT (6) steps on every axis is
 dropped, the planner keeps its position, and the steps go with the next move."""
 
-import os
 
 import numpy as np
-import pytest
-from differential import Stage, send_both
+from pin_bench import PinBench, bench_fixture
 
 from dmdsm.marlin_patch import load_machine
 
 SPU = np.asarray(load_machine().steps_per_unit, float)
 
 
-class Bench:
-    """The stage under test in-process, homed, driven in simulated time."""
-
-    def __init__(self) -> None:
-        self.stage = Stage(os.environ.get("DMDSM_STAGE_FIRMWARE", ""))
-        self.n = 0
-        for cmd in ("G28", "G90", "M400"):
-            self.send(cmd)
-
-    def send(self, cmd: str) -> list[str]:
-        """One numbered line, answered (busy lines left out)."""
-        self.n += 1
-        (replies,) = send_both([self.stage], cmd, self.n)
-        assert replies and replies[-1].startswith(f"ok N{self.n} "), (cmd, replies)
-        return replies
+class Bench(PinBench):
+    """The stage under test (pin_bench.PinBench) with this module's moves."""
 
     def where(self) -> tuple[str, dict[str, int]]:
         """M114: its logical part and its counts."""
@@ -54,14 +39,7 @@ class Bench:
         assert self.where()[1] == {"X": 8000, "Y": 10000, "Z": 4000, "A": 0}
 
 
-@pytest.fixture(scope="module")
-def bench():
-    """The stage under test, homed once for the module."""
-    if os.environ.get("DMDSM_STAGE_PORT"):
-        pytest.skip("a real board's STEP pins are not recorded here")
-    b = Bench()
-    yield b
-    b.stage.close()
+bench = bench_fixture(Bench)
 
 
 def test_a_move_under_six_steps_takes_no_step_and_m114_counts_the_planner(bench):

@@ -135,20 +135,28 @@ fuzz: build
 # aeon's numba kernels (BOSS, MiniRocket) compile once, beside the builds and lint, into
 # numba's on-disk cache: cold they take ~3 min of CPU, and each test worker and the demo
 # would otherwise compile them again at the same time (dmdsm.host.classify.warm).
+QUIET_TESTS := tests/e2e/test_auto_scan.py tests/test_live.py tests/test_live_server.py
+
 test: deps
 	@mkdir -p build; $(PY) -m dmdsm.host.classify.warm > build/warm.log 2>&1 & warm=$$!; \
 	$(MAKE) --no-print-directory build gen-check lint test-c fuzz || { kill $$warm; exit 1; }; \
 	wait $$warm || { cat build/warm.log; echo "aeon warm-up failed" >&2; exit 1; }; \
 	cat build/warm.log
-	@# the full demo (mostly waiting on the real-time emulator) runs beside the other tests
-	@rc=0; drc=0; \
+	@# the full demo (mostly waiting on the real-time emulator) runs beside the other tests;
+	@# QUIET_TESTS run after it, alone: their truth is the emulator's wall-clock pacing
+	@# (live stamps), or they showed a load-dependent result not yet understood (the auto
+	@# scan's follow lines came out flat in Y beside the demo; issue 32, see its note)
+	@rc=0; drc=0; qrc=0; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider tests/demo \
 	  > build/test-demo.log 2>&1 & demo=$$!; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -n 4 --dist loadfile \
-	  --durations=15 --ignore=tests/demo || rc=$$?; \
+	  --durations=15 --ignore=tests/demo $(addprefix --ignore=,$(QUIET_TESTS)) || rc=$$?; \
 	wait $$demo || drc=$$?; \
 	echo "---- tests/demo (the full demo, run beside the others)"; cat build/test-demo.log; \
-	exit $$(( rc || drc ))
+	echo "---- $(QUIET_TESTS) (alone)"; \
+	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider \
+	  $(QUIET_TESTS) || qrc=$$?; \
+	exit $$(( rc || drc || qrc ))
 
 # the inner loop: every test that does not serve a board in real time (`-m "not realtime"`)
 test-fast: deps build
@@ -170,6 +178,7 @@ bench: deps firmware
 	$(PY) bench/scan_coverage.py --quick
 	$(PY) bench/model.py --quick --band-mm 8
 	$(PY) bench/classify.py
+	$(PY) bench/live.py --quick
 
 ## ---------------------------------------------------------------- the real Marlin
 # make check-marlin MARLIN=DIR: patch and build that Marlin checkout (with the Chiron example

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from .version import __version__
 
-_EXPORTS = {  # name -> subpackage that defines it
+_EXPORTS = {  # name -> subpackage (or module) that defines it
     "SensorClient": "links", "StageClient": "links", "LinkError": "links",
     "UnsafeMove": "links", "Stage": "links", "StageMotion": "links", "Sensor": "links",
     "ShotSensor": "links", "StreamSensor": "links",
@@ -30,6 +30,8 @@ _EXPORTS = {  # name -> subpackage that defines it
     "load_model": "classify", "save_model": "classify",
     "read_model": "model", "load_object_model": "model", "ObjectModel": "model",
     "list_models": "model",
+    "live": "robotics.live", "LiveRecord": "robotics.live",
+    "export_scan_mcap": "robotics.scan_export",
 }
 __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literally
     "__version__", "SensorClient", "StageClient", "LinkError", "UnsafeMove", "Stage",
@@ -38,6 +40,7 @@ __all__ = [  # the names of _EXPORTS, listed for tools that read __all__ literal
     "CalibrationError", "CalibrationResult", "ScanPlan", "load_plan", "run_plan", "read_scan",
     "scan_points", "validate_block", "list_scans", "predict_scan", "assemble", "fit",
     "load_model", "save_model", "read_model", "load_object_model", "ObjectModel", "list_models",
+    "live", "LiveRecord", "export_scan_mcap",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __getattr__
@@ -63,6 +66,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load in __get
     )
     from .model import ObjectModel, list_models, load_object_model, read_model
     from .ranging import MatchedFilter, RangingSetup, calibrate_range
+    from .robotics.live import LiveRecord, live
+    from .robotics.scan_export import export_scan_mcap
     from .scan import (
         ScanPlan,
         list_scans,

@@ -108,6 +108,44 @@ def test_parts_sum_and_split():
     assert np.allclose(np.linalg.eigvalsh(own_d)[:, :2], 0, atol=1e-12)   # along the beam
 
 
+def test_a_shots_travel_adds_its_smear_along_the_path_in_the_object_frame():
+    """A fly shot's distance belongs to the whole stretch the stage moved while its waveform
+    was averaged: a Monte Carlo of the echo's place drawn uniformly along that travel gives
+    the covariance covariance_parts adds (travel^2 / 12 along the path, turned into the
+    object frame), and nothing is added without travel."""
+    rng = np.random.default_rng(4)
+    S, d, th = scan(rng, 6, angles=np.arange(0, 360, 30.0))
+    travel = rng.normal(0, 1.5, (6, 3))
+    z3 = np.zeros(3)
+    _, own0, _ = covariance_parts(S, d, np.zeros(6), th, V, N, X_R, z3, z3, z3, 0.0, 0.0)
+    _, own, _ = covariance_parts(S, d, np.zeros(6), th, V, N, X_R, z3, z3, z3, 0.0, 0.0,
+                                 travel_mm=travel)
+    assert np.allclose(own0, 0)
+    u = rng.uniform(-0.5, 0.5, (20000, 1))
+    for k in range(6):
+        Pk = object_points(stage_points(S[k] + u * travel[k], np.full(len(u), d[k]), V),
+                           np.full(len(u), th[k]), N, X_R)
+        assert np.allclose(np.cov(Pk.T), own[k], rtol=0.05, atol=1e-3 * np.trace(own[k]))
+
+
+def test_shot_travel_is_the_path_during_each_average_and_zero_when_standing():
+    """shot_travel_mm: a fly line at 2 mm per 12 ms average gives 2 mm along X for every
+    shot, a lost shot in it does not double that, and step-and-shoot points (one shot each,
+    or repeats at one place) get none."""
+    from dmdsm.host.scan.points import shot_travel_mm
+
+    n = 8
+    p = {"point_index": np.array([0] * 5 + [1, 2, 2]), "level": np.zeros(n, int),
+         "angle_index": np.zeros(n, int), "received": np.array([1, 1, 0, 1, 1, 1, 1, 1], bool),
+         "timestamp": np.array([0, 12, 24, 36, 48, 60, 72, 84], np.uint64) * 240_000,
+         "stage_position_mm": np.zeros((n, 3))}
+    p["stage_position_mm"][:5, 0] = 10 + 2.0 * np.arange(5)
+    p["stage_position_mm"][5:] = [50.0, 1.0, 2.0]
+    t = shot_travel_mm(p)
+    assert np.allclose(t[[0, 1, 3, 4]], [2.0, 0, 0])
+    assert np.allclose(t[2], 0) and np.allclose(t[5:], 0)
+
+
 def test_continuous_angles_are_fast_and_the_same_points():
     """100k points with every table angle different: well under two seconds, and the points
     are object_points' (checked on a subset, which object_points does one angle at a time)."""

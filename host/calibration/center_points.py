@@ -3,6 +3,9 @@ covariances, edge depths moved onto the filament axis; bad data refused with wha
 
 from __future__ import annotations
 
+import functools
+from typing import NamedTuple
+
 import numpy as np
 
 from .solver import CalibrationData, CalibrationError, same_angle
@@ -36,43 +39,82 @@ def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: floa
 SPOT_SHAPES = ("disk", "gauss")  # the spot's intensity: uniform disk, or a Gaussian
 
 
-def _spot_samples(spot_radius_mm: float, shape: str = "disk") -> np.ndarray:
-    """Points (k, 2) spread over the laser spot (mm), each carrying an equal share of its
-    power: for a uniform disk an 11 x 11 grid inside it; for a Gaussian of the same second
-    moment (sigma = radius / 2) the 11 x 11 grid of its quantiles."""
-    g = (np.arange(11) - 5) / 5.0
-    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    if shape == "gauss":
-        from scipy.special import ndtri
+class Spot(NamedTuple):
+    """The laser spot of the raster model: its intensity's shape (SPOT_SHAPES) and radius."""
 
-        q = ndtri((np.arange(11) + 0.5) / 11)
-        return spot_radius_mm / 2 * np.stack(np.meshgrid(q, q), -1).reshape(-1, 2)
-    return spot_radius_mm * xy[(xy ** 2).sum(axis=1) <= 1.0]
+    shape: str        # "disk": uniform; "gauss": a Gaussian of sigma = radius / 2 (the
+    radius_mm: float  # disk's second moment), cut at 5 sigma
+
+    def scaled(self, factor: float) -> Spot:
+        """The spot stretched by factor."""
+        return Spot(self.shape, self.radius_mm * factor)
 
 
-def _profile(P: np.ndarray, c: np.ndarray, spot: np.ndarray, target: str, r: float
+PROFILE_TABLE = 2048  # offsets at which a profile is tabulated (then interpolated)
+
+
+@functools.lru_cache(maxsize=256)
+def _profile_table(shape: str, target: str, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets, amplitudes): the share of the spot on the target for the spot's centre
+    `offsets` from the target's centre (disk) or axis (strip), in target radii, for a spot
+    of radius `ratio` target radii; a strip's side weighted by sqrt(cos) of the incidence.
+    Exact (no sampling of the spot): a disk on a disk is the circles' overlap, a Gaussian on
+    a disk the noncentral chi-square's distribution function (2 degrees of freedom), a
+    strip the integral of the spot's marginal across it (4001-point quadrature). The spot
+    sampled by 121 points made the model's own profile lumpy by ~1 % of its top per raster
+    step, which the raster model then added to the centroid's scatter (docs/calibration.md)."""
+    from scipy.stats import ncx2
+
+    a = max(ratio, 1e-6)
+    reach = 1 + (2.5 * a if shape == "gauss" else a)  # beyond: no light on the target
+    d = np.linspace(0.0, reach, PROFILE_TABLE)
+    if target == "strip":
+        x = np.linspace(-1, 1, 4001)
+        w = np.sqrt(np.sqrt(np.clip(1 - x * x, 0, None)))
+        t = x[None, :] - d[:, None]  # from the spot's centre across the strip
+        if shape == "gauss":
+            s = a / 2
+            dens = np.exp(-0.5 * (t / s) ** 2) / (s * np.sqrt(2 * np.pi))
+        else:
+            dens = 2 * np.sqrt(np.clip(a * a - t * t, 0, None)) / (np.pi * a * a)
+        y = (dens * w).sum(axis=1) * (x[1] - x[0])
+    elif shape == "gauss":
+        s = a / 2
+        y = ncx2.cdf(1 / (s * s), 2, np.maximum(d / s, 1e-9) ** 2)
+    else:  # overlap of the unit disk and the spot's, over the spot's area
+        dd = np.maximum(d, 1e-12)
+        c1 = np.clip((dd * dd + 1 - a * a) / (2 * dd), -1, 1)
+        c2 = np.clip((dd * dd + a * a - 1) / (2 * dd * a), -1, 1)
+        lens = (np.arccos(c1) + a * a * np.arccos(c2)
+                - 0.5 * np.sqrt(np.clip((-dd + 1 + a) * (dd + 1 - a) * (dd - 1 + a)
+                                        * (dd + 1 + a), 0, None)))
+        full = np.pi * min(a, 1.0) ** 2
+        y = np.where(d <= abs(1 - a), full, np.where(d >= 1 + a, 0.0, lens)) / (np.pi * a * a)
+    return d, np.clip(y, 0, 1)
+
+
+def _profile(P: np.ndarray, c: np.ndarray, spot: Spot, target: str, r: float
              ) -> np.ndarray:
-    """Model amplitude (draws, n) at raster positions P (n, k) for target centres c
-    (draws, k): the share of the spot on the target, a cylinder's side weighted by
-    sqrt(cos) of the incidence (the OA signal falls as the light arrives obliquely).
-    Evaluated PROFILE_ELEMENTS (draw, point, spot sample) triples at a time: bounded memory
-    whatever the raster's size."""
-    chunk = max(1, int(PROFILE_ELEMENTS // max(len(P) * len(spot), 1)))
+    """Model amplitude (draws, n) at raster positions P (n, k mm) for target centres c
+    (draws, k mm): the share of the spot on the target (a disk of radius r mm seen end on,
+    or a strip of half-width r: only the raster's first axis crosses it), a cylinder's side
+    weighted by sqrt(cos) of the incidence (the OA signal falls as the light arrives
+    obliquely); interpolated in the spot's exact profile (_profile_table). Evaluated
+    PROFILE_ELEMENTS (draw, point) pairs at a time: bounded memory whatever the raster's
+    size."""
+    chunk = max(1, int(PROFILE_ELEMENTS // max(len(P), 1)))
     if len(c) > chunk:
         return np.concatenate([_profile(P, c[i:i + chunk], spot, target, r)
                                for i in range(0, len(c), chunk)])
-
-    def rel(j: int) -> np.ndarray:  # (draws, n, spot samples) offsets along raster axis j
-        return P[None, :, None, j] - c[:, None, None, j] + spot[None, None, :, j]
-
-    if target == "strip":  # only the axis across the strip matters
-        on = np.sqrt(np.sqrt(np.clip(1 - (rel(0) / r) ** 2, 0, None)))
+    d_tab, y_tab = _profile_table(spot.shape, target, round(spot.radius_mm / r, 4))
+    if target == "strip":
+        off = np.abs(P[None, :, 0] - c[:, None, 0])
     else:
-        on = (sum(rel(j) ** 2 for j in range(P.shape[1])) < r * r).astype(float)
-    return on.mean(axis=2)
+        off = np.sqrt(((P[None, :, :] - c[:, None, :]) ** 2).sum(axis=2))
+    return np.interp(off / r, d_tab, y_tab, right=0.0)
 
 
-PROFILE_ELEMENTS = 2e6  # model amplitudes evaluated at once (x 8 bytes, a few times over)
+PROFILE_ELEMENTS = 2e5  # model amplitudes evaluated at once (x 8 bytes, a few times over)
 MAX_GROUP_POINTS = 2500  # raw points of one tip frame or edge sweep (a 50 x 50 raster)
 MAX_CENTERS = 1000       # tip frames plus edge sweeps (each ~30 ms of raster model)
 MAX_EDGE_FRAMES = 72     # the MLE fits a table angle per edge frame (72: ~11 s)
@@ -87,14 +129,14 @@ def _steps(P: np.ndarray) -> np.ndarray:
     return np.array(steps)
 
 
-def _model_counts(P: np.ndarray, c: np.ndarray, spot: np.ndarray, target: str, r: float,
+def _model_counts(P: np.ndarray, c: np.ndarray, spot: Spot, target: str, r: float,
                   threshold: float) -> np.ndarray:
     """Raster points above threshold x max of the noise-free model profile, per centre c."""
     a = _profile(P, c, spot, target, r)
     return (a >= threshold * a.max(axis=1, keepdims=True)).sum(axis=1)
 
 
-def match_count(P: np.ndarray, spot: np.ndarray, target: str, r: float, threshold: float,
+def match_count(P: np.ndarray, spot: Spot, target: str, r: float, threshold: float,
                 count: float) -> float:
     """The stretch (of the spot and the target together, 0.4-2.5) at which the model keeps
     `count` raster points above threshold on average over the raster's phase: the width of
@@ -107,7 +149,7 @@ def match_count(P: np.ndarray, spot: np.ndarray, target: str, r: float, threshol
     lo, hi = np.log(0.4), np.log(2.5)
     for _ in range(14):
         mid = 0.5 * (lo + hi)
-        if _model_counts(P, c, spot * np.exp(mid), target, r * np.exp(mid),
+        if _model_counts(P, c, spot.scaled(np.exp(mid)), target, r * np.exp(mid),
                          threshold).mean() < count:
             lo = mid
         else:
@@ -115,36 +157,154 @@ def match_count(P: np.ndarray, spot: np.ndarray, target: str, r: float, threshol
     return float(np.exp(0.5 * (lo + hi)))
 
 
-def _amp_noise(P: np.ndarray, amp: np.ndarray, c0: np.ndarray, steps: np.ndarray,
-               spot_radius_mm: float, target: str, r: float) -> tuple[float, str]:
-    """(relative amplitude noise, spot shape): the robust (median) scale of the measured
-    amplitudes' relative residuals about the model profile that fits them best - the spot a
-    uniform disk or a Gaussian (SPOT_SHAPES), spot and target scaled together by 0.7-1.4,
-    the centre within about a raster step of c0 (the thresholded centroid). About one fixed
-    profile (the nominal uniform disk, centred on c0) the profile's own misfit passed for
-    amplitude noise: 3-18 % on data with 0.01 % (docs/calibration.md)."""
+class ProfileFit(NamedTuple):
+    """A frame's (or sweep's) measured amplitudes about the model profile of one spot shape
+    that fits them best (spot and target stretched, centre shifted)."""
+
+    scale: float     # robust (median-based) scale of the relative residuals
+    u: np.ndarray    # (m, k) mm: the points near the profile's top, from the fitted centre
+    rel: np.ndarray  # (m,) their relative residuals (measured / gain - model) / model
+    level: np.ndarray  # (m,) their model amplitudes / the model's top
+
+
+def _fit_at(P: np.ndarray, amp: np.ndarray, c: np.ndarray, spot: Spot, target: str,
+            r: float) -> ProfileFit:
+    """The profile fit with the spot and target (radius r mm) as given, centred at c (k,
+    mm), its gain by least squares."""
+    prof = _profile(P, c[None], spot, target, r)[0]
+    gain = max(float(prof @ amp) / max(float(prof @ prof), 1e-12), 1e-12)
+    top = max(float(prof.max()), 1e-12)
+    near = prof > 0.25 * top
+    rel = (amp[near] / gain - prof[near]) / np.maximum(prof[near], 1e-12)
+    scale = float(1.4826 * np.median(np.abs(rel))) if near.any() else np.inf
+    return ProfileFit(scale, P[near] - c, rel, prof[near] / top)
+
+
+def _profile_fits(P: np.ndarray, amp: np.ndarray, c0: np.ndarray, steps: np.ndarray,
+                  spot_radius_mm: float, target: str, r: float) -> dict[str, ProfileFit]:
+    """Per spot shape (SPOT_SHAPES) the model profile that fits the amplitudes `amp` (n,) at
+    raster positions P (n, k mm) best: spot and target scaled together by 0.6-1.6, the centre
+    within about a raster step of c0 (the thresholded centroid, mm), the gain by least
+    squares. A grid (the smallest robust scale of the relative residuals at the points above
+    a quarter of the profile's top) and then least squares (soft L1) on the centre and the
+    stretch: the misfit of a stretch between the grid's steps (12 % apart) changed within a
+    raster step and passed for 4 % amplitude noise on a profile the model follows."""
+    from scipy.optimize import least_squares
+
     k = P.shape[1]
     g = np.linspace(-0.6, 0.6, 5)
     shifts = np.stack(np.meshgrid(*[g * max(s, 1e-3) for s in steps]), -1).reshape(-1, k)
-    best = (np.inf, "disk")
+    out: dict[str, ProfileFit] = {}
+    f_scale = max(0.01 * float(np.max(amp)), 1e-12)
     for shape in SPOT_SHAPES:
-        spot = _spot_samples(spot_radius_mm, shape)[:, :k]
+        spot = Spot(shape, spot_radius_mm)
+        best, start = np.inf, np.concatenate([c0, [0.0]])
         for stretch in np.geomspace(0.7, 1.4, 7):
-            prof = _profile(P, c0 + shifts, spot * stretch, target, r * stretch)
+            prof = _profile(P, c0 + shifts, spot.scaled(stretch), target, r * stretch)
             gain = (prof @ amp) / np.maximum((prof * prof).sum(axis=1), 1e-12)
             near = prof > 0.25 * prof.max(axis=1, keepdims=True)
             with np.errstate(invalid="ignore"):
                 rel = np.where(near, (amp[None] / np.maximum(gain[:, None], 1e-12) - prof)
                                / np.maximum(prof, 1e-12), np.nan)
                 scale = 1.4826 * np.nanmedian(np.abs(rel), axis=1)
-            if np.isfinite(scale).any() and np.nanmin(scale) < best[0]:
-                best = (float(np.nanmin(scale)), shape)
-    return float(np.clip(best[0] if np.isfinite(best[0]) else 0.0, 0, 0.5)), best[1]
+            if np.isfinite(scale).any() and np.nanmin(scale) < best:
+                i = int(np.nanargmin(scale))
+                best, start = float(scale[i]), np.concatenate([c0 + shifts[i],
+                                                               [np.log(stretch)]])
+
+        def resid(x: np.ndarray, spot: Spot = spot) -> np.ndarray:
+            f = float(np.exp(np.clip(x[k], np.log(0.6), np.log(1.6))))
+            prof = _profile(P, x[None, :k], spot.scaled(f), target, r * f)[0]
+            gain = float(prof @ amp) / max(float(prof @ prof), 1e-12)
+            return gain * prof - amp
+
+        x = least_squares(resid, start, loss="soft_l1", f_scale=f_scale,
+                          diff_step=1e-3, max_nfev=60).x
+        f = float(np.exp(np.clip(x[k], np.log(0.6), np.log(1.6))))
+        out[shape] = _fit_at(P, amp, x[:k], spot.scaled(f), target, r * f)
+    return out
+
+
+NEAR_THRESHOLD = (0.3, 0.8)  # profile levels (x its top) whose noise moves the threshold
+
+
+def white_noise(fits: list[ProfileFit], steps: np.ndarray) -> float:
+    """Relative amplitude noise (its std) of the measured amplitudes, without the profile's
+    own misfit: what is new at every raster point.
+
+    About the model profile the residuals hold two parts: the noise, new at every raw point,
+    and the misfit of the model to the real spot and target (a misplaced centre, a wrong
+    width or shape, the smooth part of a lumpy spot), which changes little from one raster
+    point to the next and does not average down. Each residual less the mean of its 2k
+    raster neighbours (steps (k,) mm apart along the raster's axes) keeps the first with
+    variance (1 + 1 / 2k) x the noise's and drops the second; the robust (median) scale of
+    those differences at the points whose model amplitude lies within NEAR_THRESHOLD of the
+    top (those whose noise moves them across the threshold), pooled over the frames of one
+    target, is the noise. The scale of the residuals themselves took the misfit for noise:
+    5-7.5 % on independent data with 0.01 % (docs/calibration.md)."""
+    from scipy.spatial import cKDTree
+
+    k = len(steps)
+    steps = np.maximum(np.asarray(steps, float), 1e-3)
+    diffs = []
+    for f in fits:
+        if len(f.rel) < 2 * k + 1:
+            continue
+        tree = cKDTree(f.u / steps)  # in raster steps: neighbours 1 apart
+        nb = []
+        for j in range(k):
+            for sign in (-1, 1):
+                e = np.zeros(k)
+                e[j] = sign
+                dist, idx = tree.query(f.u / steps + e, distance_upper_bound=0.25)
+                nb.append(np.where(np.isfinite(dist), idx, -1))
+        nb_idx = np.array(nb).T  # (m, 2k)
+        lev = f.level
+        use = (nb_idx >= 0).all(axis=1) & (lev >= NEAR_THRESHOLD[0]) & \
+            (lev <= NEAR_THRESHOLD[1]) & np.isfinite(f.rel)
+        if use.any():
+            mean_nb = f.rel[nb_idx[use]].mean(axis=1)
+            diffs.append((f.rel[use] - mean_nb) / np.sqrt(1 + 1 / (2 * k)))
+    d = np.concatenate(diffs) if diffs else np.zeros(0)
+    d = d[np.isfinite(d)]
+    if len(d) < 3:  # too few interior points: the residuals' own scale (misfit included)
+        rel = np.concatenate([f.rel for f in fits] or [np.zeros(0)])
+        rel = rel[np.isfinite(rel)]
+        return float(np.clip(1.4826 * np.median(np.abs(rel)) if len(rel) else 0.0, 0, 0.5))
+    return float(np.clip(1.4826 * np.median(np.abs(d)), 0, 0.5))
+
+
+def amp_noise(fits: list[dict[str, ProfileFit]], steps: np.ndarray) -> tuple[float, str]:
+    """(relative amplitude noise, spot shape) of the frames (or sweeps) of one target from
+    their profile fits (_profile_fits; steps (k,) mm: the raster's). The shape: the one whose
+    residuals (in units of the profile's top), pooled over the frames, have the smallest rms
+    - one laser spot for all of them; a frame's own choice by its relative residuals' scale
+    followed its misfit and took a disk for the Gaussian spot in a third of the data sets,
+    whose thresholded centroid it then declared 1.3x as uncertain. The noise: what is new at
+    every raster point (white_noise), the smaller of its values about either shape (a
+    shape's misfit can only add to it)."""
+    def pooled(shape: str) -> float:
+        res = [f[shape].rel * f[shape].level for f in fits if shape in f]
+        res = np.concatenate(res) if res else np.zeros(0)
+        res = res[np.isfinite(res)]
+        return float(np.sqrt(np.mean(res ** 2))) if len(res) else np.inf
+
+    noise = min(white_noise([f[sh] for f in fits if sh in f], steps) for sh in SPOT_SHAPES)
+    return noise, min(SPOT_SHAPES, key=pooled)
+
+
+def _amp_noise(P: np.ndarray, amp: np.ndarray, c0: np.ndarray, steps: np.ndarray,
+               spot_radius_mm: float, target: str, r: float) -> tuple[float, str]:
+    """(relative amplitude noise, spot shape) of one frame alone (amp_noise of its profile
+    fits)."""
+    fits = _profile_fits(P, amp, c0, steps, spot_radius_mm, target, r)
+    return amp_noise([fits], steps)
 
 
 def raster_centroid_cov(P: np.ndarray, amp: np.ndarray, threshold: float, target: str,
                         radius_mm: float, spot_radius_mm: float, draws: int = 400,
-                        count: float | None = None) -> np.ndarray:
+                        count: float | None = None, noise: tuple[float, str] | None = None
+                        ) -> np.ndarray:
     """Covariance (k, k) mm^2 of the center point of raster positions P (n, k; the raster's
     own plane, k = 1 or 2 axes) above threshold x max amplitude, over the raster's unknown
     phase: the amplitude is the share of the spot (uniform disk) on the target, a disk of
@@ -153,23 +313,27 @@ def raster_centroid_cov(P: np.ndarray, amp: np.ndarray, threshold: float, target
     (n,) show about that profile, which moves points across the threshold. The raster and
     the noise, not the points' spread / n, set how far a thresholded centroid moves.
     `count`: the mean number of raster points above threshold in the frames (or sweeps) of
-    this target, to which the profile's width is matched (match_count)."""
+    this target, to which the profile's width is matched (match_count). `noise`: (relative
+    amplitude noise, spot shape) from all the frames of this target (amp_noise); without it
+    they come from this frame's amplitudes alone."""
     P = np.asarray(P, float)
     k = P.shape[1]
     steps = _steps(P)
     rho, r = max(spot_radius_mm, 1e-3), max(radius_mm, 0.05)
     amp = np.asarray(amp, float)
-    kept = amp >= threshold * amp.max()
-    rel_noise, shape = _amp_noise(P, amp, P[kept].mean(axis=0), steps, rho, target, r)
-    spot = _spot_samples(rho, shape)[:, :k]
+    if noise is None:
+        kept = amp >= threshold * amp.max()
+        noise = _amp_noise(P, amp, P[kept].mean(axis=0), steps, rho, target, r)
+    rel_noise, shape = noise
+    spot = Spot(shape, rho)
     if count is not None:
         stretch = match_count(P, spot, target, r, threshold, count)
-        spot, r = spot * stretch, r * stretch
+        spot, r = spot.scaled(stretch), r * stretch
     rng = np.random.default_rng(0)  # a fixed design sum: the same data give the same result
     c = P.mean(axis=0) + (rng.random((draws, k)) - 0.5) * steps
     noise = rng.standard_normal((draws, len(P)))
     err = np.empty((draws, k))
-    chunk = max(1, int(PROFILE_ELEMENTS // max(len(P) * len(spot), 1)))  # bounded memory
+    chunk = max(1, int(PROFILE_ELEMENTS // max(len(P), 1)))  # bounded memory
     for i in range(0, draws, chunk):
         a = _profile(P, c[i:i + chunk], spot, target, r) * (1 + rel_noise * noise[i:i + chunk])
         keep = a >= threshold * a.max(axis=1, keepdims=True)
@@ -198,9 +362,43 @@ def _mean_count(S: np.ndarray, raw: dict[str, np.ndarray], groups: list[np.ndarr
     return float(np.mean(counts)) if counts else None
 
 
+def _raster_plane(S: np.ndarray) -> np.ndarray:
+    """(3, k) the stage axes a raster of stage readings S (n, 3 mm) steps along: its plane
+    (a square raster has no SVD axes)."""
+    span = np.ptp(S, axis=0)
+    return np.eye(3)[:, span > max(0.2 * span.max(), 1e-3)]
+
+
+def target_noise(S: np.ndarray, raw: dict[str, np.ndarray], groups: list[np.ndarray],
+                 threshold: float, target: str, radius_mm: float, spot_radius_mm: float
+                 ) -> tuple[float, str] | None:
+    """(relative amplitude noise, spot shape) of one target from all its frames (or sweeps),
+    the masks `groups` (amp_noise); None without a frame the raster model takes."""
+    if spot_radius_mm <= 0:
+        return None
+    fits, steps = [], None
+    rho, r = max(spot_radius_mm, 1e-3), max(radius_mm, 0.05)
+    for m in groups:
+        ok, keep = _above(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold)
+        if keep.sum() < MIN_POINTS:
+            continue
+        U = _raster_plane(S[m][ok])
+        if U.shape[1] not in (1, 2):
+            continue
+        P = (S[m][ok] - S[m][ok].mean(axis=0)) @ U
+        amp = raw["amplitude"][m][ok]
+        st = _steps(P)
+        if steps is not None and len(st) != len(steps):
+            continue  # a frame stepped along other axes than the first
+        steps = st if steps is None else np.maximum(steps, st)
+        kept = amp >= threshold * amp.max()
+        fits.append(_profile_fits(P, amp, P[kept].mean(axis=0), st, rho, target, r))
+    return amp_noise(fits, steps) if fits else None
+
+
 def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
             radius_mm: float = 0.0, spot_radius_mm: float = 0.0, target: str = "strip",
-            count: float | None = None
+            count: float | None = None, noise: tuple[float, str] | None = None
             ) -> tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
     """(stage reading S (mm), depth (mm), stage covariance (3, 3 mm^2), (kept points'
     lateral offsets, their depths) for depth_noise_var) of the center point of the ranged
@@ -208,8 +406,8 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
     MIN_POINTS. With a filament radius and target "strip" the points
     are a sweep across a filament: each depth is moved from the ranged front surface onto
     the axis (front_depth_mm of its offset from the sweep's centre). The lateral covariance
-    is the raster's (raster_centroid_cov) in the raster's plane and the points' spread / n
-    out of it (stage noise)."""
+    is the raster's (raster_centroid_cov, with the target's `noise` if given) in the
+    raster's plane and the points' spread / n out of it (stage noise)."""
     ok, keep = _above(S, d, amp, threshold)
     n = int(keep.sum())
     if n < MIN_POINTS:
@@ -220,12 +418,11 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
         dk = dk + front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm)
     spread = np.cov(Sk.T) / n
     # the raster's plane: the stage axes it steps along (a square raster has no SVD axes)
-    span = np.ptp(S[ok], axis=0)
-    U = np.eye(3)[:, span > max(0.2 * span.max(), 1e-3)]  # (3, k)
+    U = _raster_plane(S[ok])
     if U.shape[1] in (1, 2) and spot_radius_mm > 0:
         out = np.eye(3) - U @ U.T
         Q = raster_centroid_cov((S[ok] - S[ok].mean(axis=0)) @ U, amp[ok], threshold, target,
-                                radius_mm, spot_radius_mm, count=count)
+                                radius_mm, spot_radius_mm, count=count, noise=noise)
         cov = U @ Q @ U.T + out @ spread @ out
     else:
         cov = spread
@@ -319,10 +516,13 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
     _check_size(tip_groups, edge_groups, len(np.unique(raw["frame"][is_edge])))
     tip_count = _mean_count(S, raw, tip_groups, threshold)
     edge_count = _mean_count(S, raw, edge_groups, threshold)
+    tip_noise = target_noise(S, raw, tip_groups, threshold, "disk", radius_mm, spot_radius_mm)
+    edge_noise = target_noise(S, raw, edge_groups, threshold, "strip", radius_mm,
+                              spot_radius_mm)
     for f in np.unique(raw["frame"][is_tip]):
         m = is_tip & (raw["frame"] == f)
         c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold, radius_mm,
-                    spot_radius_mm, target="disk", count=tip_count)
+                    spot_radius_mm, target="disk", count=tip_count, noise=tip_noise)
         if c is not None:
             tips.append(c)
     if len(tips) < 2:
@@ -339,7 +539,7 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
         for ln in lines:
             m = fm & (raw["line"] == ln)
             c = _center(S[m], raw["d_mm"][m], raw["amplitude"][m], threshold, radius_mm,
-                        spot_radius_mm, count=edge_count)
+                        spot_radius_mm, count=edge_count, noise=edge_noise)
             if c is not None:
                 got.append(c)
         if len(got) < 2:

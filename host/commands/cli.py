@@ -19,7 +19,7 @@ from ..scan.catalogue import CatalogueError
 from ..scan.plan import PlanError
 from ..scan.scanfile import ScanFileError
 from ..version import __version__
-from . import calibrate, campaign, classify, db, devices, flash, model, plan, range, scan, sim
+from . import calibrate, campaign, classify, db, devices, flash, live, model, plan, range, scan, sim
 from .errors import CliError, Terminated, terminate
 
 AddParser = Callable[[argparse._SubParsersAction], None]
@@ -45,6 +45,7 @@ def build_parser(extra: Iterable[AddParser] = ()) -> argparse.ArgumentParser:
     db.add_parsers(sub)
     model.add_parser(sub)
     classify.add_parser(sub)
+    live.add_parser(sub)
     for add_parser in extra:
         add_parser(sub)
     return ap

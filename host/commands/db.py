@@ -71,6 +71,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "every scan)")
     q.add_argument("--csv", type=Path, help="points as CSV")
     q.add_argument("--ply", type=Path, help="object-frame point cloud as PLY")
+    q.add_argument("--mcap", type=Path, help="the scan as ROS 2 messages in an MCAP file: "
+                   "poses (/tf), waveforms, distances, points, the object's model "
+                   "(docs/robotics.md); Foxglove replays it")
+    q.add_argument("--bag", type=Path, metavar="DIR", help="the same messages as a ROS 2 bag "
+                   "folder `ros2 bag` (Humble) opens as it is: DIR/DIR_0.mcap and "
+                   "DIR/metadata.yaml (DIR created if missing; instead of --mcap)")
     q.add_argument("--format", choices=["parquet"],
                    help="parquet: one row per waveform of the scans (docs/formats.md), to -o")
     q.add_argument("-o", "--output", type=Path, help="the Parquet file (with --format parquet)")
@@ -154,11 +160,16 @@ def cmd_db(args: argparse.Namespace) -> int:
                 print(f"{k:>12}: {shown(v)}" if k != "plan" else
                       f"{k:>12}:\n" + "\n".join(shown(x) for x in str(v).splitlines()))
         return 0
-    if not (args.csv or args.ply):
-        raise CliError("db export needs --csv FILE and/or --ply FILE")
-    for out, flag in ((args.csv, "--csv"), (args.ply, "--ply")):
+    if not (args.csv or args.ply or args.mcap or args.bag):
+        raise CliError("db export needs --csv FILE and/or --ply FILE (or --mcap FILE, --bag DIR)")
+    if args.mcap and args.bag:
+        raise CliError("db export: --mcap FILE and --bag DIR both write the messages: give one")
+    for out, flag in ((args.csv, "--csv"), (args.ply, "--ply"), (args.mcap, "--mcap")):
         if out:
             check_output(out, flag=flag)
+    if args.bag:
+        from ..robotics.bag_metadata import bag_file
+        bag_file(args.bag)  # refused before anything is written (one line)
     pts = scan_points(scan)
     if args.csv:
         with atomic_output(args.csv, flag="--csv") as tmp:
@@ -166,11 +177,33 @@ def cmd_db(args: argparse.Namespace) -> int:
     if args.ply:
         with atomic_output(args.ply, flag="--ply") as tmp:
             write_ply(tmp, pts)
+    mcap = _export_mcap(args, scan) if args.mcap or args.bag else None
     n = sum(len(pts[m]["P"]) for m in MODS)
     print(json.dumps({"scan_id": args.scan_id, "points": n, "csv": str(args.csv or ""),
-                      "ply": str(args.ply or "")}) if args.json else
-          f"exported {n} points of {args.scan_id}")
+                      "ply": str(args.ply or ""), "mcap": mcap}) if args.json else
+          f"exported {n} points of {args.scan_id}" +
+          (f"; {mcap['messages']} ROS 2 messages to {shown(mcap['path'])}" if mcap else "")
+          + (f" (ROS 2 bag {shown(args.bag)})" if args.bag else ""))
     return 0
+
+
+def _export_mcap(args: argparse.Namespace, scan: ScanData) -> dict:
+    """`db export SCAN --mcap FILE` (or `--bag DIR`): the scan (and its object's latest
+    model, if any) as ROS 2 messages; the summary of robotics.scan_export."""
+    from ..model.store import ModelError, load_object_model
+    from ..robotics.scan_export import export_scan_bag, export_scan_mcap
+    from .errors import CliError
+
+    try:
+        model = load_object_model(args.db, str(scan.sample.get("name", "")))
+    except ModelError:
+        model = None  # no model of the object (or none readable): the scan alone
+    try:
+        if args.bag:
+            return export_scan_bag(scan, args.bag, model=model)
+        return export_scan_mcap(scan, args.mcap, model=model)
+    except ValueError as e:  # host times no ROS stamp can hold: a damaged file
+        raise CliError(str(e)) from None
 
 
 def _one_scan_id(args: argparse.Namespace) -> str:
@@ -231,9 +264,10 @@ def _export_parquet(args: argparse.Namespace) -> int:
     from ..scan.parquet_export import ExportError, export_parquet
     from .errors import CliError
 
-    if args.csv or args.ply:
-        raise CliError("db export: --csv/--ply write one scan's points; --format parquet "
-                       "writes to -o FILE only (drop --csv/--ply or --format)")
+    if args.csv or args.ply or args.mcap or args.bag:
+        raise CliError("db export: --csv/--ply write one scan's points (--mcap/--bag its "
+                       "messages); --format parquet writes to -o FILE only (drop "
+                       "--csv/--ply/--mcap/--bag or --format)")
     if not args.output:
         raise CliError("db export --format parquet needs -o FILE (e.g. -o scans.parquet)")
     check_output(args.output, flag="-o")

@@ -16,9 +16,8 @@ from dmdsm.marlin_patch import load_machine
 from ..files import atomic_output
 from ..links.config import load_config, resolve_port
 from ..links.link_rate import link_rate
-from ..links.sensor import config_range
 from .errors import check_output
-from .options import CONFIG_HELP, SENSOR_HELP, STAGE_HELP
+from .options import CONFIG_HELP, SENSOR_HELP, STAGE_HELP, add_waveform_config
 
 ROLES = {  # USB VID:PID -> guessed role
     "0483:374b": "sensor (NUCLEO-H743ZI ST-LINK/V2-1 VCP)",
@@ -51,13 +50,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor", help=SENSOR_HELP)
     p.add_argument("--shots", type=int, required=True,
                    help="waveforms to record: exactly this many are written (required)")
-    avg, samples = config_range("n_average"), config_range("n_samples")
-    p.add_argument("--average", type=int, default=None,
-                   help=f"laser shots averaged on board per waveform, {avg[0]}..{avg[1]} "
-                        "(default: the board's setting, 1 after power-up)")
-    p.add_argument("--samples", type=int, default=None,
-                   help=f"samples per waveform, {samples[0]}..{samples[1]} (default: the "
-                        "board's setting, 1024 after power-up)")
+    add_waveform_config(p)
     p.add_argument("-o", "--output", type=Path, required=True,
                    help="FILE.h5 to write (required; an existing file is kept unless --force)")
     p.add_argument("--force", action="store_true",

@@ -18,3 +18,17 @@ def add_ports(p: argparse.ArgumentParser, sensor: bool = True, stage: bool = Tru
     if stage:
         p.add_argument("--stage", help=STAGE_HELP)
     p.add_argument("--config", type=Path, default=None, help=CONFIG_HELP)
+
+
+def add_waveform_config(p: argparse.ArgumentParser) -> None:
+    """--average and --samples: the sensor board's on-board averaging and waveform length
+    (their ranges from the protocol's config fields; default: what the board has)."""
+    from ..links.sensor import config_range
+
+    avg, samples = config_range("n_average"), config_range("n_samples")
+    p.add_argument("--average", type=int, default=None,
+                   help=f"laser shots averaged on board per waveform, {avg[0]}..{avg[1]} "
+                        "(default: the board's setting, 1 after power-up)")
+    p.add_argument("--samples", type=int, default=None,
+                   help=f"samples per waveform, {samples[0]}..{samples[1]} (default: the "
+                        "board's setting, 1024 after power-up)")

@@ -9,6 +9,7 @@ the device's counters account for every lost shot. Nothing that failed its CRC i
 from __future__ import annotations
 
 import logging
+import math
 import os
 import random
 import threading
@@ -91,10 +92,27 @@ class ClockSync:
     residual_s: float      # rms of the fit (s)
     rtt_s: float           # median round trip (s)
     rate_std: float = float("inf")  # std of ticks_per_s from the fit (ticks/s)
+    n: int = 0             # exchanges the line went through
+    x_mean_s: float = 0.0  # their mean host time (s)
+    sxx_s2: float = 0.0    # their host times' sum of squared deviations from the mean (s^2)
 
     def to_host_s(self, ticks: np.ndarray | float) -> np.ndarray | float:
         """Host monotonic time (s) of device ticks."""
         return (np.asarray(ticks, dtype=float) - self.offset_ticks) / self.ticks_per_s
+
+    def line_std_s(self, ticks: float) -> float:
+        """1-sigma (s) of the fitted line itself at device ticks: least squares' error of
+        the mean prediction (offset, and the drift times the distance from the exchanges'
+        mean), the scatter estimated from the residuals with n - 2 degrees of freedom and
+        widened by Student's t (variance (n-2)/(n-4)), so that error/sigma has an RMS of 1
+        however few the exchanges. Not one exchange's scatter, nor the round trip's unknown
+        split (the caller's terms). Infinite through 4 exchanges or fewer."""
+        if self.n <= 4:
+            return float("inf")
+        s2 = self.residual_s ** 2 * self.n / (self.n - 4)  # n/(n-2) x (n-2)/(n-4)
+        dx = float(self.to_host_s(ticks)) - self.x_mean_s
+        return math.sqrt(s2 * (1.0 / self.n + (dx * dx / self.sxx_s2 if self.sxx_s2 > 0
+                                               else 0.0)))
 
 
 class SensorClient:
@@ -261,8 +279,10 @@ class SensorClient:
             self.cond.notify_all()
 
     # ------------------------------------------------------------------ commands
-    def request(self, name: str, **fields: object) -> Message:
-        """Send a command and return its response; retried with the same seq on timeout."""
+    def request(self, name: str, sent_ns: list[int] | None = None, **fields: object
+                ) -> Message:
+        """Send a command and return its response; retried with the same seq on timeout.
+        sent_ns: the host monotonic ns just before each write of it is appended there."""
         if self.link_error:
             raise SensorError(f"lost the sensor board on {self.port_name} ({self.link_error}): "
                               f"check its USB cable, then run the command again")
@@ -271,6 +291,8 @@ class SensorClient:
         frame = encode_frame(Message(name, seq=seq, **fields))
         retry = encode_frame(Message(name, seq=seq, flags=SPEC.flags["retransmit"], **fields))
         for attempt in range(self.retries + 1):
+            if sent_ns is not None:
+                sent_ns.append(time.monotonic_ns())
             self._write(frame if attempt == 0 else retry)
             deadline = Deadline(self.timeout_s, self.board_clock)
             with self.cond:
@@ -395,6 +417,18 @@ class SensorClient:
             self.stream = None
             raise
 
+    def stream_take(self, wait_s: float = 0.0) -> list[Message]:
+        """The streamed waveforms that arrived since the last take, in order, waiting up to
+        wait_s (s) for one; taken out of self.stream, so a long stream holds only what has
+        not been taken (stream_stop returns the rest)."""
+        with self.cond:
+            if not self.stream and wait_s > 0 and not self.link_error:
+                self.cond.wait(wait_s)
+            got = self.stream or []
+            if self.stream is not None:
+                self.stream = []
+        return got
+
     def stream_stop(self) -> tuple[list[Message], dict]:
         """Disarm, wait for the link to go quiet, and return the streamed waveforms and
         the device counters' change over the stream (skipped triggers, overruns, integrity
@@ -448,22 +482,40 @@ class SensorClient:
     def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0
                         ) -> list[tuple[float, float, float]]:
         """n clock_sync exchanges, started at least spacing_s apart: (host monotonic mid-time
-        s, device ticks, round trip s). A rate needs a baseline: 16 back-to-back exchanges
-        span 10 ms, where 1 ms of USB jitter is a 10 % error."""
-        out = []
-        for i in range(n):
-            if i and spacing_s > 0:
+        s, device ticks, round trip s), the round trip from the request's write (not from
+        before its encoding, nor a wait for another thread). A rate needs a baseline: 16
+        back-to-back exchanges span 10 ms, where 1 ms of USB jitter is a 10 % error. One
+        that had to be sent again is left out (the board may have answered the first)."""
+        out: list[tuple[float, float, float]] = []
+        for _ in range(n):
+            if out and spacing_s > 0:
                 time.sleep(max(0.0, out[-1][0] + spacing_s - time.monotonic()))
-            t0 = time.monotonic_ns()
-            r = self.request("clock_sync", host_time_ns=t0)
+            sent: list[int] = []
+            r = self.request("clock_sync", sent_ns=sent, host_time_ns=time.monotonic_ns())
             t1 = time.monotonic_ns()
-            out.append(((t0 + t1) / 2e9, float(r.device_ticks), (t1 - t0) / 1e9))
+            if len(sent) == 1:
+                out.append(((sent[0] + t1) / 2e9, float(r.device_ticks), (t1 - sent[0]) / 1e9))
         return out
 
     def sync_clock(self, exchanges: int = 16, spacing_s: float = CLOCK_SPACING_S) -> ClockSync:
         """Fit device ticks against host time over clock_sync exchanges (Klipper's way),
         spread over exchanges x spacing_s seconds (0.4 s by default)."""
         return fit_clock(self.clock_exchanges(exchanges, spacing_s))
+
+
+def fit_line(host_s: np.ndarray, ticks: np.ndarray, rtt_s: float) -> ClockSync:
+    """Device ticks = offset + rate * host s by least squares through these (host s, ticks)
+    pairs (at least 2), with what the line's own error needs: residual, drift's std, count,
+    mean host time and spread. rtt_s: the round trip reported with it (s)."""
+    x, y = np.asarray(host_s, dtype=float), np.asarray(ticks, dtype=float)
+    xk = x - x[0]  # host seconds since the first: the fit stays well conditioned
+    rate, offset = np.polyfit(xk, y, 1)
+    resid = y - (offset + rate * xk)
+    res_s = float(np.sqrt(np.mean(resid ** 2)) / rate)
+    sxx = float(np.sum((xk - xk.mean()) ** 2))
+    rate_std = res_s * rate / math.sqrt(sxx) if sxx > 0 and len(xk) > 2 else float("inf")
+    return ClockSync(offset - rate * x[0], rate, res_s, float(rtt_s), rate_std=rate_std,
+                     n=len(x), x_mean_s=float(x.mean()), sxx_s2=sxx)
 
 
 def fit_clock(samples: list[tuple[float, float, float]]) -> ClockSync:
@@ -473,11 +525,4 @@ def fit_clock(samples: list[tuple[float, float, float]]) -> ClockSync:
     keep = rtts <= np.median(rtts) * 1.5
     if keep.sum() < 2:
         keep[:] = True
-    xk, yk = x[keep] - x[keep][0], y[keep]
-    rate, offset = np.polyfit(xk, yk, 1)
-    resid = yk - (offset + rate * xk)
-    res_s = float(np.sqrt(np.mean(resid ** 2)) / rate)
-    spread = float(np.sqrt(np.sum((xk - xk.mean()) ** 2)))
-    rate_std = res_s * rate / spread if spread > 0 and len(xk) > 2 else float("inf")
-    return ClockSync(offset - rate * x[keep][0], rate, res_s, float(np.median(rtts)),
-                     rate_std=rate_std)
+    return fit_line(x[keep], y[keep], float(np.median(rtts)))

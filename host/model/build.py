@@ -82,7 +82,7 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
         P, own, common = covariance_parts(
             p["S"], p["d"], d_std, p["theta_deg"], cal["v"], cal["n"], cal["X_R"],
             _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
-            stage_std_mm=stage_std_mm, table_std_deg=table_std_deg)
+            stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"])
         out["P"].append(P)
         out["cov"].append(own + common)
         out["common"].append(common)

@@ -40,12 +40,16 @@ def _rz(theta_deg: np.ndarray) -> np.ndarray:
 def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
                      theta_deg: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
                      v_std: np.ndarray, n_std: np.ndarray, X_R_std: np.ndarray,
-                     stage_std_mm: float = 0.01, table_std_deg: float = 0.01
+                     stage_std_mm: float = 0.01, table_std_deg: float = 0.01,
+                     travel_mm: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object-frame points P (k, 3) mm and their covariance (k, 3, 3) mm^2 in two parts:
-    (P, own, common). own: the distance's std along v (d_std_mm, mm) and the stage's noise
-    (stage_std_mm per axis); common: the calibration (v_std, n_std per component, unitless;
-    X_R_std mm) and the table angle (table_std_deg, deg, shared by the points of one stop).
+    (P, own, common). own: the distance's std along v (d_std_mm, mm), the stage's noise
+    (stage_std_mm per axis) and, with travel_mm (k, 3; stage frame, mm: the stage's travel
+    while the shot was averaged), that travel's smear: where along it the echo came from is
+    unknown, a uniform spread of variance travel^2 / 12 along it; common: the calibration
+    (v_std, n_std per component, unitless; X_R_std mm) and the table angle (table_std_deg,
+    deg, shared by the points of one stop).
     Raises ValueError on a non-finite d_std (a distance without its std has no covariance)."""
     S = np.asarray(S_mm, float).reshape(-1, 3)
     d = np.asarray(d_mm, float).ravel()
@@ -69,6 +73,9 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
     M = Rz @ B.T                                      # dP/dX, (k, 3, 3)
     own = (d_std ** 2)[:, None, None] * np.einsum("ki,kj->kij", M @ vu, M @ vu)
     own += stage_std_mm ** 2 * np.eye(3)              # M M^T = I
+    if travel_mm is not None:
+        t = np.einsum("kij,kj->ki", M, np.asarray(travel_mm, float).reshape(-1, 3))
+        own += np.einsum("ki,kj->kij", t, t) / 12.0
     Jv = d[:, None, None] * (M @ ((np.eye(3) - np.outer(vu, vu)) / vn))
     common = np.einsum("kij,j,klj->kil", Jv, np.asarray(v_std, float) ** 2, Jv)
     common += np.einsum("kij,j,klj->kil", M, np.asarray(X_R_std, float) ** 2, M)

@@ -201,6 +201,19 @@ def gate_for(d_mm: float, modality: str, fs_hz: float, c_mm_s: float, n: int,
 
 
 
+_BETAS: dict[int, tuple[Template, float]] = {}  # id -> (template, rms bandwidth rad/sample)
+
+
+def _beta(tmpl: Template) -> float:
+    """rms_bandwidth(tmpl), computed once per template (a live stream asks per waveform)."""
+    hit = _BETAS.get(id(tmpl))
+    if hit is None or hit[0] is not tmpl:
+        if len(_BETAS) > 64:
+            _BETAS.clear()
+        hit = _BETAS[id(tmpl)] = (tmpl, rms_bandwidth(tmpl))
+    return hit[1]
+
+
 def distance_std_mm(setup: RangingSetup, modality: str, snr_db: np.ndarray | float
                     ) -> np.ndarray:
     """Standard deviation (mm) of a distance read at this SNR: the Cramer-Rao bound of the
@@ -209,7 +222,7 @@ def distance_std_mm(setup: RangingSetup, modality: str, snr_db: np.ndarray | flo
     residual on its target. The calibration's t0 error is common to every point (not here)."""
     cal, tmpl = setup.cals[modality], setup.templates[modality]
     snr = 10 ** (np.asarray(snr_db, float) / 20)
-    t_std = 1.0 / (np.maximum(snr, 1e-30) * rms_bandwidth(tmpl) * setup.fs_hz)
+    t_std = 1.0 / (np.maximum(snr, 1e-30) * _beta(tmpl) * setup.fs_hz)
     return np.hypot(cal.c_mm_s * t_std / K[modality], cal.residual_mm)
 
 

@@ -77,6 +77,7 @@ class MatchedFilter:
     def __init__(self, template: Template, n_samples: int) -> None:
         self.t = template
         self.n = n_samples
+        self.energy = template.energy  # sum of squares of the pulse (counts^2)
         padded = np.zeros(n_samples)
         m = min(len(template.pulse), n_samples)
         padded[:m] = template.pulse[:m]
@@ -115,18 +116,30 @@ class MatchedFilter:
             return Arrivals(*(np.concatenate([getattr(p, f) for p in parts])
                               for f in ("index", "amplitude", "snr_db", "reason",
                                         "index_std")))
-        n_shots, n = x.shape
-        lo, hi = gate or (0, n)
-        sigma_c = _noise_sigma(x, noise) * np.sqrt(self.t.energy)  # correlation noise std
+        return self.arrivals(*self.correlate(x, noise), gate, min_snr_db)
+
+    def correlate(self, x: np.ndarray, noise: slice | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x as float32 (n_shots, n_samples), the correlation c: c[:, k] the template
+        starting at sample k, the noise std of c per shot): what arrivals() searches, so one
+        waveform can be searched in several gates for one FFT pair."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float32))
+        sigma_c = _noise_sigma(x, noise) * np.sqrt(self.energy)  # correlation noise std
         C = sfft.rfft(x, axis=1)  # scipy: single-precision transforms ~6x faster here
         C *= self.R
-        c = sfft.irfft(C, n=n, axis=1)  # c[k]: template starting at sample k
+        return x, sfft.irfft(C, n=x.shape[1], axis=1), sigma_c
+
+    def arrivals(self, x: np.ndarray, c: np.ndarray, sigma_c: np.ndarray,
+                 gate: tuple[int, int] | None = None, min_snr_db: float = 15.0) -> Arrivals:
+        """The first arrival within `gate` (samples) of each shot, from correlate()'s output."""
+        n_shots, n = x.shape
+        lo, hi = gate or (0, n)
         center = self.t.center
         # lags whose arrival (k + center) lies in the gate
         k_lo, k_hi = max(int(np.floor(lo - center)), 0), min(int(np.ceil(hi - center)), n)
         seg = c[:, k_lo:k_hi]
         period = max(2, int(round(self.period)))
-        mag = np.abs(seg, out=C.view(np.float32)[:, :seg.shape[1]])  # C is spent: reuse it
+        mag = np.abs(seg)
         peak = mag.max(axis=1)
         # the first echo: the first carrier period whose envelope (|correlation|) exceeds
         # half the gate's maximum; its main lobe is the largest correlation value within one
@@ -167,7 +180,7 @@ class MatchedFilter:
                          f"(interference, not an echo)")
         snr = 10 ** (snr_db.astype(float) / 20)
         return Arrivals(np.where(ok, index.astype(float), np.nan),
-                        amp.astype(float) / self.t.energy, snr_db.astype(float), reason,
+                        amp.astype(float) / self.energy, snr_db.astype(float), reason,
                         np.where(ok, 1.0 / (np.maximum(snr, 1e-30) * self.beta), np.nan))
 
     def _refine(self, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

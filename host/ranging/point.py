@@ -15,19 +15,24 @@ from .matched_filter import MatchedFilter
 
 CONTINUITY_MM = 3.0  # a lone pulse continues the previous point's surface within this
 CONTINUITY_DB = 10.0  # ... and at most this much weaker than it
+WINDOW_MARGIN_MM = 1.0  # a lone pulse read by the window: its other reading this far outside
 
 
 class PointRanger:
     """Both modalities' distances (mm) for one waveform, gated to depth_mm = (lo, hi) mm.
 
     Each reading is checked for its partner (the other modality from the same surface,
-    within `pair_mm`): a confirmed pair fixes both; a lone pulse is read as `modality`
-    ("both": OA, which survives oblique incidence where the specular US echo does not)."""
+    within `pair_mm`): a confirmed pair fixes both; a lone pulse is read as `modality` when
+    that is "oa" or "us", and with "both" as below."""
     # A lone pulse with modality "both" is read as whichever modality puts it within
     # CONTINUITY_MM of the previous point of the same line (surfaces are continuous) at an
     # SNR no more than CONTINUITY_DB below that point's in the same modality (a much
     # weaker pulse is something else: e.g. OA from a grazing side face far behind); with
-    # no such neighbour it is ambiguous and both distances are NaN.
+    # no such neighbour it is ambiguous and both distances are NaN. Before that, where a
+    # window is given (where the object can be along the beam), lone_by_window reads the
+    # pulses it can tell apart: a neighbour (or the outline's prediction) can mislead, the
+    # window cannot (an OA pulse 16 mm away reads as a US echo at ~8 mm, where an auto
+    # line expects the surface).
 
     def __init__(self, setup: RangingSetup, n_samples: int, tick_hz: float,
                  modality: str, depth_mm: tuple[float, float], pair_mm: float = 2.0) -> None:
@@ -50,27 +55,70 @@ class PointRanger:
         return (max(int(np.floor(t[0] * fs)) + pre - 1, 0),
                 min(int(np.ceil(t[1] * fs)) + pre + 2, self.n))
 
-    def _range(self, m: str, x: np.ndarray, d_lo: float, d_hi: float, phase_s: float,
+    def _range(self, m: str, corr: dict, d_lo: float, d_hi: float, phase_s: float,
                pre: int) -> tuple[float, float]:
+        """(distance mm or NaN, SNR dB) of modality m's first arrival from d_lo..d_hi mm;
+        corr: the waveform's correlation per modality (MatchedFilter.correlate)."""
         cal = self.setup.cals[m]
         mf = self.filters[m]
         lo, hi = self._gate(m, d_lo, d_hi, phase_s, pre)
         hi = min(hi, self.n - len(mf.t.pulse) + int(mf.t.center))  # no circular wrap
         if hi - int(mf.t.center) - 2 * mf.period < max(lo - int(mf.t.center), 0):
             return np.nan, 0.0  # the window is off the end of the waveform
-        arr = mf(x, gate=(lo, hi))
+        arr = mf.arrivals(*corr[m], gate=(lo, hi))
         t = arr.times_s(self.setup.fs_hz, phase_s, pre)[0]
         return float(cal.c_mm_s * (t - cal.t0_s) / K[m]), float(arr.snr_db[0])
 
+    def other_reading_mm(self, m: str, d_mm: float) -> float:
+        """The distance (mm) the arrival that modality m reads as d_mm gives when read as the
+        other modality (same arrival time; calibrated t0, c and one way / round trip)."""
+        o = "us" if m == "oa" else "oa"
+        cm, co = self.setup.cals[m], self.setup.cals[o]
+        t = cm.t0_s + K[m] * d_mm / cm.c_mm_s
+        return float(co.c_mm_s * (t - co.t0_s) / K[o])
+
+    def lone_by_window(self, wide: dict[str, tuple[float, float]],
+                       window: tuple[float, float]) -> str | None:
+        """The modality a lone pulse is read as, or None, from where the surface can be:
+        window = (near, far) beam distances (mm) between which the beam crosses the object's
+        bounding volume (nothing else is in front of the sensor).
+
+        A reading is plausible within near - m .. far + m (m = WINDOW_MARGIN_MM); it is taken
+        only if the same arrival read as the other modality is impossible: read as OA at d,
+        its US reading (about d / 2) must be nearer than near - m (no echo from within the
+        volume comes back that early); read as US, its OA reading (about 2 d) must be beyond
+        far + m (no OA pulse from within the volume arrives that late). So no US echo is ever
+        read as OA (a surface twice as far as it is: a keep-out too small) nor an OA pulse as
+        US, whatever the material. With both readings taken (two different arrivals), the
+        nearer surface wins."""
+        near, far = window
+        if not (np.isfinite(near) and np.isfinite(far)):
+            return None
+        lo, hi = near - WINDOW_MARGIN_MM, far + WINDOW_MARGIN_MM
+        ok = []
+        for m in ("oa", "us"):
+            d = wide.get(m, (np.nan, 0.0))[0]
+            if m not in self.filters or not (np.isfinite(d) and lo <= d <= hi):
+                continue
+            other = self.other_reading_mm(m, d)
+            if (other < lo) if m == "oa" else (other > hi):
+                ok.append((d, m))
+        return min(ok)[1] if ok else None
+
     def __call__(self, waveform: np.ndarray, phase_ticks: int, pretrigger: int = 0,
-                 previous: tuple[float, dict[str, float]] | None = None
+                 previous: tuple[float, dict[str, float]] | None = None,
+                 window: tuple[float, float] | None = None
                  ) -> dict[str, tuple[float, float]]:
         """modality -> (distance mm or NaN, SNR dB); previous: (surface distance mm,
-        {modality: SNR dB}) of the previous point on the same scan line, if any."""
+        {modality: SNR dB}) of the previous point on the same scan line, if any; window:
+        (near, far) beam distances (mm) where the beam crosses the object's bounding volume,
+        if known (a lone pulse is read by lone_by_window first, then by continuity with
+        previous; modality "both" only: "oa" and "us" read every lone pulse as theirs)."""
         x = waveform.astype(np.float32)[None, :] - 32768.0
         ph = phase_ticks / self.tick_hz
         mods = [m for m in ("oa", "us") if m in self.filters]
-        wide = {m: self._range(m, x, self.lo, self.hi, ph, pretrigger) for m in mods}
+        corr = {m: self.filters[m].correlate(x) for m in mods}  # one FFT pair a modality
+        wide = {m: self._range(m, corr, self.lo, self.hi, ph, pretrigger) for m in mods}
         out = {m: (np.nan, wide[m][1]) for m in mods}
         if len(mods) < 2:
             m = mods[0]
@@ -81,12 +129,12 @@ class PointRanger:
         pairs = []  # (partner SNR, oa reading, us reading)
         d_us, snr_us = wide["us"]
         if np.isfinite(d_us):
-            oa = self._range("oa", x, d_us - w, d_us + w, ph, pretrigger)
+            oa = self._range("oa", corr, d_us - w, d_us + w, ph, pretrigger)
             if np.isfinite(oa[0]):
                 pairs.append((oa[1], oa, wide["us"]))
         d_oa, snr_oa = wide["oa"]
         if np.isfinite(d_oa):
-            us = self._range("us", x, d_oa - w, d_oa + w, ph, pretrigger)
+            us = self._range("us", corr, d_oa - w, d_oa + w, ph, pretrigger)
             if np.isfinite(us[0]):
                 pairs.append((us[1], wide["oa"], us))
         if pairs:
@@ -95,12 +143,12 @@ class PointRanger:
                     "us": us if self.modality != "oa" else (np.nan, us[1])}
         if self.modality != "both":
             lone = self.modality
-        elif previous is not None and np.isfinite(previous[0]):
-            near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
-                    and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]
-            lone = near[0] if len(near) == 1 else None
-        else:
-            lone = None
+        else:  # the window first: where it decides, it cannot be wrong; then continuity
+            lone = self.lone_by_window(wide, window) if window is not None else None
+            if lone is None and previous is not None and np.isfinite(previous[0]):
+                near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
+                        and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]
+                lone = near[0] if len(near) == 1 else None
         if lone is not None and np.isfinite(wide[lone][0]):
             out[lone] = wide[lone]
         return out

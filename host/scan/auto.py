@@ -29,12 +29,27 @@ CANDIDATE_STEP_DEG = 15.0  # table angles the angle choice picks from
 EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (flat), each side
 CLEARANCE_MM = 1.0        # a follow line keeps this far outside the keep-out (the checks'
 # sampling and the chords between its vertices)
+# where the first look from the plan's standoff leaves its row of the outline open, a "both"
+# plan looks again from farther out: the cylinder's radius away, at most this far. A lone OA
+# pulse is read only where its US reading is nearer than the cylinder (host/ranging/
+# point.py), i.e. up to about the standoff behind the cylinder's front (from the front to
+# the axis at a standoff of the radius), and twice this (97 mm) stays inside what a
+# 1024-sample record (~104 mm of OA) and the OA ranging (80-100 mm) reach
+FAR_LOOK_MAX_STANDOFF_MM = 48.0
+TABLE_CLEAR_MM = 1.0      # a first-look surface lies at least this far above the table
+
+
+def far_look_standoff_mm(plan: ScanPlan) -> float:
+    """The far look's standoff (mm) from the bounding cylinder: its radius, at least the
+    plan's standoff, at most FAR_LOOK_MAX_STANDOFF_MM."""
+    return max(plan.standoff_mm, min(plan.radius_mm, FAR_LOOK_MAX_STANDOFF_MM))
 
 
 def first_look_plan(plan: ScanPlan) -> ScanPlan:
-    """The first look: a fly pass from the bounding cylinder's front plane, levels every
-    first_look_step_mm over the heights the follow lines scan (one step beyond them either
-    way, within the object's height), FIRST_LOOK_ANGLES table angles, the plan's step."""
+    """The first look: a fly pass from the bounding cylinder's front plane (`standoff_mm`
+    in front of it), levels every first_look_step_mm over the heights the follow lines
+    scan (one step beyond them either way, within the object's height), FIRST_LOOK_ANGLES
+    table angles, the plan's step."""
     h, dz = plan.height_mm, plan.first_look_step_mm
     lo = max(min(plan.levels_mm) - dz, min(dz / 2, h / 2))
     hi = min(max(plan.levels_mm) + dz, h)
@@ -45,10 +60,81 @@ def first_look_plan(plan: ScanPlan) -> ScanPlan:
                    half_width_mm=plan.radius_mm)
 
 
-def first_look_points(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:
-    """The first look's points in execution order, each line numbered."""
-    pts = expand(first_look_plan(plan), v, X_R)
-    return _numbered(pts, 0)
+def far_look_plan(plan: ScanPlan, levels_mm: list[float]) -> ScanPlan:
+    """The far look at some of the first look's levels: the same lines from
+    far_look_standoff_mm in front of the bounding cylinder."""
+    return replace(first_look_plan(plan), levels_mm=list(levels_mm),
+                   standoff_mm=far_look_standoff_mm(plan))
+
+
+def far_look_levels(plan: ScanPlan, outline: Outline, v: np.ndarray) -> list[float]:
+    """The first look's levels (mm) to look at again from farther out: for a "both" plan
+    (a lone pulse of an "oa" or "us" plan is read as theirs already) those whose row of
+    the outline (at the height the beam reaches standoff_mm away) has a cell left open,
+    when the far look stands farther out than the first."""
+    if plan.modality != "both" or far_look_standoff_mm(plan) <= plan.standoff_mm:
+        return []
+    closed = outline.closed()
+    out = []
+    for z in first_look_plan(plan).levels_mm:
+        j = int(np.clip(np.searchsorted(outline.z_edges_mm, z + plan.standoff_mm * v[2],
+                                        side="right") - 1, 0, closed.shape[1] - 1))
+        if not closed[:, j].all():
+            out.append(z)
+    return out
+
+
+def first_look_points(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
+                      n: np.ndarray | None = None, levels_mm: list[float] | None = None,
+                      first_line: int = 0, first_index: int = 0) -> list[Point]:
+    """The first look's points in execution order, each line numbered (from first_line,
+    indices from first_index); with levels_mm, the far look's at those levels instead.
+    With the table axis n, each with its window_mm: where its beam crosses the bounding
+    cylinder (the ranger reads a lone pulse by it)."""
+    look = first_look_plan(plan) if levels_mm is None else far_look_plan(plan, levels_mm)
+    pts = _numbered(expand(look, v, X_R), first_line)
+    for p in pts:
+        p.index += first_index
+    if n is not None and pts:
+        S = np.array([[p.x, p.y, p.z] for p in pts], float).reshape(-1, 3)
+        near, far = cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
+        for p, a, b in zip(pts, near, far):
+            p.window_mm = (float(a), float(b))
+    return pts
+
+
+def cylinder_window(S: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
+                    radius_mm: float, height_mm: float, z_min_mm: float = TABLE_CLEAR_MM
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(near, far) beam distances (mm, (k,) each) over which the beams X = S + d v of
+    sensors at S (k, 3) cross the bounding cylinder (axis X_R along n, radius_mm, heights
+    z_min_mm .. height_mm above the table); NaN where a beam misses it or it lies behind
+    the sensor."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    n = np.asarray(n, float) / np.linalg.norm(n)
+    rel = np.asarray(S, float).reshape(-1, 3) - np.asarray(X_R, float)
+    z0, vz = rel @ n, float(v @ n)                     # height and its rate along the beam
+    p, q = rel - z0[:, None] * n, v - vz * n           # across the axis
+    a = float(q @ q)
+    b, c = p @ q, np.einsum("ij,ij->i", p, p) - radius_mm ** 2
+    near = np.full(len(rel), -np.inf)
+    far = np.full(len(rel), np.inf)
+    if a > 1e-12:
+        disc = b * b - a * c
+        root = np.sqrt(np.where(disc >= 0, disc, np.nan))
+        near, far = (-b - root) / a, (-b + root) / a
+    elif radius_mm > 0:  # along the axis: inside the radius or nowhere
+        near = np.where(c <= 0, near, np.nan)
+        far = np.where(c <= 0, far, np.nan)
+    if abs(vz) > 1e-12:
+        t1, t2 = (z_min_mm - z0) / vz, (height_mm - z0) / vz
+        near, far = np.maximum(near, np.minimum(t1, t2)), np.minimum(far, np.maximum(t1, t2))
+    else:
+        inside = (z0 >= z_min_mm) & (z0 <= height_mm)
+        near, far = np.where(inside, near, np.nan), np.where(inside, far, np.nan)
+    near = np.maximum(near, 0.0)
+    bad = ~(np.isfinite(near) & np.isfinite(far) & (far > near))
+    return np.where(bad, np.nan, near), np.where(bad, np.nan, far)
 
 
 def _numbered(pts: list[Point], first_line: int) -> list[Point]:
@@ -214,7 +300,36 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
                 pts.append(Point(len(pts), float(xs[ci]), float(y[ci]), float(X_R[2] + h),
                                  float(th), li, ci, ai, first_line + k, float(expect[ci])))
             k += 1
+    if pts:
+        S = np.array([[p.x, p.y, p.z] for p in pts], float)
+        near, far = outline_window(S, np.array([p.theta_deg for p in pts]), outline, v, n,
+                                   X_R)
+        for p, a, b in zip(pts, near, far):
+            p.window_mm = (float(a), float(b))
     return pts
+
+
+def outline_window(S: np.ndarray, theta_deg: np.ndarray, outline: Outline, v: np.ndarray,
+                   n: np.ndarray, X_R: np.ndarray, step_mm: float = 0.25
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(near, far) beam distances (mm, (k,) each) where the object can be along the beams of
+    sensors at S (k, 3) with the table at theta_deg (k,): from where the beam enters the
+    outline's keep-out without margin (the object lies inside it: the premise of its
+    safety), found every step_mm along the beam, to where it leaves the bounding cylinder
+    (cylinder_window); NaN where the beam misses either."""
+    S = np.asarray(S, float).reshape(-1, 3)
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    lo, far = cylinder_window(S, v, n, X_R, outline.radius_mm, outline.height_mm)
+    keep = OutlineKeepOut(outline, np.asarray(X_R, float), np.asarray(n, float), 0.0)
+    near = np.full(len(S), np.nan)
+    th = np.broadcast_to(np.asarray(theta_deg, float), (len(S),))
+    for i in np.flatnonzero(np.isfinite(lo)):
+        d = np.arange(lo[i], far[i] + step_mm, step_mm)
+        inside = keep.inside(S[i] + d[:, None] * v, th[i])
+        if inside.any():
+            near[i] = d[int(np.argmax(inside))]
+    ok = np.isfinite(near)
+    return near, np.where(ok, far, np.nan)
 
 
 def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],

@@ -17,7 +17,15 @@ from dmdsm.marlin_patch import MachineLimits
 from ..links.interfaces import Stage, StreamSensor
 from ..links.safety import KeepOut, UnsafeMove
 from ..ranging.point import PointRanger
-from .auto import choose_angles, first_look_plan, follow_points, hole_lines
+from .auto import (
+    choose_angles,
+    far_look_levels,
+    far_look_plan,
+    first_look_plan,
+    first_look_points,
+    follow_points,
+    hole_lines,
+)
 from .common import Progress, ScanStats
 from .coverage import coverage, covered_mask
 from .fly import ramp_mm
@@ -31,7 +39,7 @@ from .fly_executor import (
     run_fly_scan,
 )
 from .outline import Outline, OutlineKeepOut, check_moves, outline_from_points
-from .plan import AUTO_SPACING_MM, Point, ScanPlan
+from .plan import AUTO_SPACING_MM, Point, ScanPlan, keep_outs
 from .reconstruct import object_points, stage_points
 from .scanfile import ScanWriter
 
@@ -52,6 +60,7 @@ class AutoPlan:
     hole_share: float = 0.0  # closed outline cells with no point after the follow lines
     hole_points: list[Point] = field(default_factory=list)  # the lines scanned again
     skipped: list[str] = field(default_factory=list)  # lines left out: no safe move to them
+    far_points: list[Point] = field(default_factory=list)  # the far look's (first look's)
 
 
 def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
@@ -237,15 +246,51 @@ def _stored_points(writer: ScanWriter, n_lines: float, calibration: dict,
     return np.vstack(out)
 
 
+def plan_far_look(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibration: dict,
+                  machine: MachineLimits, turntable: KeepOut
+                  ) -> tuple[list[Point], dict[int, list[Waypoint]], ScanPlan | None]:
+    """The far look (auto.far_look_levels) after the first look's lines in the file: its
+    points (lines and indices numbered on), their ways by line index and its plan; every
+    move of it, from where the first look ends, checked against the bounding cylinder and
+    the turntable (raises UnsafeMove). Nothing if the outline needs none."""
+    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    n_look = len(fly_lines(look))
+    levels = far_look_levels(plan, first_look_outline(writer, n_look, plan, calibration), v)
+    if not levels:
+        return [], {}, None
+    far = first_look_points(plan, v, X_R, n, levels, first_line=n_look,
+                            first_index=len(look))
+    fplan = far_look_plan(plan, levels)
+    zones = [keep_outs(plan, n, X_R)[0], turntable]
+    end = _line_targets(fly_lines(look)[-1], first_look_plan(plan), machine)[0][-1]
+    here = (end[0], far[0].y, end[2], end[3])  # FlyRun's approach: along Y first
+    check_moves([here], ["the approach to the far look"], end, machine, zones)
+    try:
+        via = _check_lines(fly_lines(look + far)[n_look:], here, fplan, machine, zones,
+                           far[0].y)
+    except _LineUnsafe as e:
+        raise UnsafeMove(str(e)) from None
+    return far, via, fplan
+
+
 def run_auto_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, look: list[Point],
                   writer: ScanWriter, ranger: PointRanger, machine: MachineLimits,
                   calibration: dict, turntable: KeepOut, progress: Progress | None = None
                   ) -> tuple[ScanStats, AutoPlan]:
-    """The first look (if not in the file yet), then the follow lines after the last line
-    stored. Returns this run's statistics (both parts) and the follow plan."""
+    """The first look (if not in the file yet), the far look where it left the outline
+    open, then the follow lines after the last line stored. Returns this run's statistics
+    (all parts) and the follow plan."""
     stats = run_fly_scan(stage, sensor, first_look_plan(plan), look, writer, ranger, machine,
                          progress)
-    auto = plan_follow(writer, look, plan, calibration, machine, turntable)
+    far, far_via, fplan = plan_far_look(writer, look, plan, calibration, machine, turntable)
+    if fplan is not None:  # from farther out: its own depth gate
+        far_ranger = PointRanger(ranger.setup, ranger.n, ranger.tick_hz, ranger.modality,
+                                 fplan.depth_gate_mm(), ranger.pair_mm)
+        _add(stats, run_fly_scan(stage, sensor, fplan, look + far, writer, far_ranger,
+                                 machine, progress, via=far_via))
+    auto = plan_follow(writer, look + far, plan, calibration, machine, turntable)
+    auto.far_points = far
+    look = look + far
     _add(stats, run_fly_scan(stage, sensor, plan, look + auto.points, writer, ranger,
                              machine, progress, via=auto.via))
     n_before = len(fly_lines(look + auto.points))

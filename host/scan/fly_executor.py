@@ -452,6 +452,22 @@ def _expected(line: FlyLine, x_mm: np.ndarray) -> np.ndarray:
                                                       ex[np.isfinite(ex)]), np.nan)
 
 
+def _windows(line: FlyLine, x_mm: np.ndarray) -> np.ndarray:
+    """(k, 2) the (near, far) beam distances (mm) where the object can be at each X of an
+    auto line (Point.window_mm), NaN where unknown: between two columns the nearer near
+    and the farther far of the pair (the window only widens, so the ranger's rule stays as
+    strict), NaN if either is unknown."""
+    pts = sorted(line.points, key=lambda p: p.x)
+    xs = np.array([p.x for p in pts])
+    w = np.array([p.window_mm for p in pts], float).reshape(-1, 2)
+    x = np.asarray(x_mm, float)
+    hi = np.clip(np.searchsorted(xs, x), 0, len(xs) - 1)
+    lo = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 1)
+    near = np.minimum(w[lo, 0], w[hi, 0])  # NaN if either is
+    far = np.maximum(w[lo, 1], w[hi, 1])
+    return np.column_stack([near, far])
+
+
 def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
            unix_minus_monotonic: float, jump_mm: float) -> dict:
     """Distances and the file's per-row values for a kept line."""
@@ -460,12 +476,16 @@ def _range(rows: dict, line: FlyLine, ranger: PointRanger, attempts: int,
     out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
                                             "snr_us_db")}
     expect = _expected(line, rows["x"])
+    window = _windows(line, rows["x"])
     previous = None
     for i in range(n):
         if (previous is None or not np.isfinite(previous[0])) and np.isfinite(expect[i]):
             # no neighbour yet: a lone pulse may continue the surface the outline predicts
             previous = (float(expect[i]), {"oa": -np.inf, "us": -np.inf})
-        r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous)
+        # an auto line's lone pulse: read first by where the object can be
+        win = (float(window[i, 0]), float(window[i, 1])) if np.isfinite(window[i]).all() \
+            else None
+        r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous, win)
         previous = surface(r)
         nan = (np.nan, 0.0)
         for m in ("oa", "us"):

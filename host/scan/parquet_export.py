@@ -22,7 +22,14 @@ from ..files import atomic_output, file_hash, one_line
 from ..version import __version__
 from .catalogue import list_scans
 from .points import MODS, scan_points
-from .scanfile import POINT_FIELDS, ScanData, ScanFileError, open_scan_file, read_scan
+from .scanfile import (
+    POINT_FIELDS,
+    ScanData,
+    ScanFileError,
+    open_scan_file,
+    read_scan,
+    sample_rate_hz,
+)
 
 FORMAT_NAME = "dmdsm-waveforms"
 FORMAT_VERSION = "1"
@@ -173,7 +180,7 @@ def _prepare(row: dict) -> _Ready:
             raise _Skip(f"the file says status {scan.entry.get('status')!r}, not complete")
         n_samples, dtype = _waveform_layout(path, scan.n_points, read_all=changed)
         _point_columns(scan)  # the calibration and ranging setup are usable
-        rate = _sample_rate(scan)
+        rate = sample_rate_hz(scan)
     except ScanFileError as e:
         raise _Skip(f"damaged: {e}") from None
     except (KeyError, ValueError, TypeError, IndexError, OSError) as e:
@@ -204,15 +211,6 @@ def _waveform_layout(path: Path, n: int, read_all: bool) -> tuple[int, str]:
     if dtype.kind not in "ui" or dtype.byteorder == ">":
         raise ValueError(f"waveforms of dtype {dtype} (expected unsigned integers)")
     return n_samples, dtype.name
-
-
-def _sample_rate(scan: ScanData) -> float:
-    """Samples per second of the scan's waveforms (Hz): the sensor's ADC rate over its
-    configured divider, else the ranging setup's rate."""
-    s = scan.sensor
-    if "adc_rate_hz" in s:
-        return float(s["adc_rate_hz"]) / int(s.get("config_sample_rate_div", 1) or 1)
-    return float(json.loads(scan.ranging_json)["fs_hz"])
 
 
 def _layout_text(layout: tuple[int, str, float]) -> str:

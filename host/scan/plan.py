@@ -317,6 +317,10 @@ class Point:
     angle_index: int
     line: int = -1  # an auto scan's line number (-1: lines by angle and level)
     expect_mm: float = math.nan  # an auto follow line's: the beam distance the outline predicts
+    # (near, far) beam distances (mm) where the object can be along the beam, NaN where
+    # unknown (the ranger reads lone pulses by it): a first look's, where the beam crosses
+    # the bounding cylinder; an auto follow line's, from the outline's keep-out to there
+    window_mm: tuple[float, float] = (math.nan, math.nan)
 
 
 def expand(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Point]:

@@ -15,13 +15,16 @@ def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
     """Per modality: object-frame points (mm) and their row in the file's data (`row`: a fly
     line's shots share one point index), point index, level, angle, d, S, and
     d_std (mm): each distance's own standard deviation (ranging.distance_std_mm) from its
-    SNR and the scan's ranging setup (NaN if the file carries no readable setup)."""
+    SNR and the scan's ranging setup (NaN if the file carries no readable setup), and
+    travel (k, 3) mm, the stage's travel while the shot's waveform was averaged
+    (shot_travel_mm)."""
     cal = scan.calibration
     p = scan.points
     try:
         setup = RangingSetup.from_json(scan.ranging_json)
     except (ValueError, AttributeError):
         setup = None
+    travel = shot_travel_mm(p)
     out = {}
     for m in MODS:
         d = p[f"distance_{m}_mm"]
@@ -32,8 +35,44 @@ def scan_points(scan: ScanData) -> dict[str, dict[str, np.ndarray]]:
         std = (distance_std_mm(setup, m, p[f"snr_{m}_db"][ok])
                if setup is not None and m in setup.cals else np.full(ok.sum(), np.nan))
         out[m] = {"P": P, "row": np.flatnonzero(ok), "index": p["point_index"][ok],
+                  "travel": travel[ok],
                   "level": p["level"][ok],
                   "theta_deg": p["theta_deg"][ok], "d": d[ok], "d_std": std, "S": S, "X": X}
+    return out
+
+
+def shot_travel_mm(p: dict[str, np.ndarray]) -> np.ndarray:
+    """The stage's travel (n, 3) mm in the stage frame while each waveform of a scan's data p
+    was averaged: on a fly or auto line (shots sharing a point index, level and angle) the
+    stage moves through the average, so the distance belongs to a stretch of the path, not to
+    its centre. Velocity from the neighbouring shots (position over device time), times the
+    averaging window: the line's shortest spacing in time (averages follow one another). Zero
+    for a step-and-shoot point (one shot, or shots at one place)."""
+    n = len(p["point_index"])
+    out = np.zeros((n, 3))
+    ok = np.asarray(p["received"], bool)
+    S = np.asarray(p["stage_position_mm"], float)
+    t = np.asarray(p["timestamp"], np.float64)
+    key = np.stack([np.asarray(p[k], np.int64) for k in ("point_index", "level", "angle_index")],
+                   axis=1)
+    rows = np.flatnonzero(ok)
+    if len(rows) < 2:
+        return out
+    _, group = np.unique(key[rows], axis=0, return_inverse=True)
+    for g in np.unique(group):
+        r = rows[group.ravel() == g]
+        if len(r) < 2:
+            continue
+        r = r[np.argsort(t[r], kind="stable")]
+        dt = np.diff(t[r])
+        if not (dt > 0).any():
+            continue
+        window = float(np.min(dt[dt > 0]))
+        vel = np.diff(S[r], axis=0) / np.where(dt > 0, dt, np.inf)[:, None]  # mm per tick
+        v = np.empty((len(r), 3))
+        v[0], v[-1] = vel[0], vel[-1]
+        v[1:-1] = 0.5 * (vel[:-1] + vel[1:])
+        out[r] = v * window
     return out
 
 

@@ -379,6 +379,15 @@ def _read(f: object, path: Path, waveforms: bool) -> ScanData:
         points={name: d[name][:n] for name in POINT_FIELDS})
 
 
+def sample_rate_hz(scan: ScanData) -> float:
+    """Samples per second of the scan's waveforms (Hz): the sensor's ADC rate over its
+    configured divider, else the ranging setup's rate."""
+    s = scan.sensor
+    if "adc_rate_hz" in s:
+        return float(s["adc_rate_hz"]) / int(s.get("config_sample_rate_div", 1) or 1)
+    return float(json.loads(scan.ranging_json)["fs_hz"])
+
+
 def scan_summary(scan: ScanData) -> dict:
     """What `dmdsm db show` prints: ids, status, counts, modality coverage."""
     p = scan.points

@@ -81,7 +81,7 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     points = expand(plan, v, X_R)
     machine, zones = load_machine(), keep_outs(plan, n, X_R)
     if plan.mode == "auto":  # the first look; the rest is checked once it has been seen
-        points = first_look_points(plan, v, X_R)
+        points = first_look_points(plan, v, X_R, n)
         targets, labels = fly_path(points, first_look_plan(plan), machine)
         check_path(targets, labels, None, machine, zones)
         # the follow levels, as far as they are known before the first look: clear of the
@@ -200,9 +200,12 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         if plan.mode == "auto":
             run.stats, auto = run_auto_scan(stage, sensor, plan, points, writer, ranger,
                                             machine, calibration, keep[1], progress)
-            run.planned = len(points) + len(auto.points) + len(auto.hole_points)
+            run.planned = len(points) + len(auto.far_points) + len(auto.points) + len(
+                auto.hole_points)
+            n_far = len(fly_lines(auto.far_points))
             run.auto = {"angles_deg": auto.angles_deg, "lines": len(fly_lines(auto.points)),
-                        "first_look_lines": len(fly_lines(points)),
+                        "first_look_lines": len(fly_lines(points)) + n_far,
+                        "far_look_lines": n_far,
                         "outline_seen_share": round(auto.seen_share, 4),
                         "outline_closed_share": round(float(auto.outline.closed().mean()), 4),
                         "holes_after_follow": round(auto.hole_share, 4),

@@ -46,7 +46,7 @@ static void sync_lock(void *ctx, bool locked)
 
 static const struct dmdsm_board_ops ops = {NULL,      arm_capture, disarm_capture, now_ticks,
                                            tx_start, tx_busy,     sync_lock};
-static const struct dmdsm_board_info info = {"test board", 1000000u, 3333333u, 8192u, 0};
+static const struct dmdsm_board_info info = {"test board", 1000000u, 3333333u, 8192u, 0, 0};
 static struct dmdsm_core core;
 
 /* ---------------------------------------------------------------- host side */
@@ -356,6 +356,75 @@ static void test_busy_link_skips_triggers_and_never_drops_a_waveform(void)
     CHECK(s.last_error == DMDSM_ERROR_NONE); /* a skip is not an error */
 }
 
+/* a board that knows its link's rate: 1 MHz ticks, 1 kHz laser, 100 kB/s (10 us a byte) */
+static const struct dmdsm_board_info timed = {"test board", 1000000u, 3333333u, 8192u, 0,
+                                              100000u};
+
+/* 300 ms of a 1 kHz laser on a link that takes 10 us a byte, the main loop polling every
+ * 100 us: the waveform frames sent, the wire's idle time and the longest a waveform waited
+ * on the board between its burst's end and the wire (us) */
+static void run_busy_link(const struct dmdsm_board_info *board, uint32_t *frames_out,
+                          uint32_t *idle_out, uint32_t *max_wait_out)
+{
+    memset(&B, 0, sizeof B);
+    dmdsm_core_init(&core, &ops, board);
+    struct dmdsm_set_config c = good;
+    c.n_samples = 512; /* a 1 kB frame: ~10.3 ms on the wire; a burst is 154 us */
+    set_config(1, &c);
+    arm(2, 0);
+    drain();
+    uint32_t wire_end = 0;           /* the fake wire is busy until then (us) */
+    uint32_t queued[4], n_queued = 0; /* edges of the shots taken, not yet on the wire */
+    uint32_t frames = 0, max_wait = 0, idle = 0;
+    for (uint32_t t = 100; t <= 300000; t += 100) { /* the main loop polls every 100 us */
+        B.now = t;
+        B.busy = t < wire_end;
+        for (int event = 0; event < 2; event++) {
+            size_t before = B.wire_len;
+            uint32_t skipped = core.count.triggers_skipped;
+            if (event == 0) {
+                dmdsm_core_poll(&core);
+            } else if (t % 1000 == 0) { /* the laser, 1 kHz */
+                shot(1000, t);
+                if (core.count.triggers_skipped == skipped && n_queued < 4)
+                    queued[n_queued++] = t;
+            }
+            if (B.wire_len == before)
+                continue;
+            /* a waveform frame went on the wire now: how long it waited since its burst */
+            CHECK(n_queued > 0);
+            uint32_t wait = t - (queued[0] + 154u > t ? t : queued[0] + 154u);
+            if (frames > 0 && wait > max_wait)
+                max_wait = wait;
+            memmove(queued, queued + 1, sizeof queued[0] * --n_queued);
+            if (frames > 0 && t > wire_end)
+                idle += t - wire_end;
+            frames++;
+            wire_end = t + (uint32_t)(B.wire_len - before) * 10u;
+            B.busy = true;
+            B.wire_len = 0;
+        }
+    }
+    *frames_out = frames;
+    *idle_out = idle;
+    *max_wait_out = max_wait;
+}
+
+static void test_a_busy_link_takes_the_shot_that_is_ready_as_the_wire_frees(void)
+{
+    uint32_t frames, idle, max_wait;
+    run_busy_link(&timed, &frames, &idle, &max_wait);
+    /* the wire is kept full (one frame per ~10.4 ms, idle only for the poll's grain) and no
+     * waveform waits longer than one laser period */
+    CHECK(frames >= 28 && idle <= frames * 200u);
+    CHECK(max_wait <= 1000u + 100u);
+    CHECK(core.count.triggers_skipped > 250);
+    /* a board that does not know its link's rate fills both slots: the same frames, each
+     * waiting about one frame time */
+    run_busy_link(&info, &frames, &idle, &max_wait);
+    CHECK(frames >= 28 && max_wait > 9000u);
+}
+
 static void test_an_arm_for_n_sends_n_waveforms_over_a_slow_link(void)
 {
     reset();
@@ -513,7 +582,7 @@ static void test_integrity_fault_is_counted_not_averaged(void)
 static void test_unavailable_capture_naks_arm(void)
 {
     static const struct dmdsm_board_info broken = {"test board", 1000000u, 3333333u, 8192u,
-                                                   DMDSM_ERROR_ADC_FAILURE};
+                                                   DMDSM_ERROR_ADC_FAILURE, 0};
     memset(&B, 0, sizeof B);
     dmdsm_core_init(&core, &ops, &broken);
     dmdsm_core_log(&core, DMDSM_LOG_LEVEL_ERROR, DMDSM_ERROR_ADC_FAILURE,
@@ -636,6 +705,7 @@ int main(void)
     test_averaging_and_shot_ids();
     test_u32_sums_do_not_overflow();
     test_busy_link_skips_triggers_and_never_drops_a_waveform();
+    test_a_busy_link_takes_the_shot_that_is_ready_as_the_wire_frees();
     test_an_arm_for_n_sends_n_waveforms_over_a_slow_link();
     test_disarm_discards_partial_average();
     test_trigger_timeout();

@@ -2,9 +2,11 @@
 written is refused before anything is measured; Ctrl-C and SIGTERM keep the shots that
 arrived and leave the board disarmed, so the next acquisition works."""
 
+import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import h5py
@@ -34,11 +36,26 @@ def test_a_stopped_acquisition_keeps_its_shots_and_disarms(emulator, tmp_path, s
                                    "--average", "16", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 60  # shots are arriving (a loaded machine may still be
-    while emu.sim.sensor.shots < 64 and time.monotonic() < deadline:  # importing at 4 s)
+    # the host has taken in shots (its progress bar on stderr says how many): the event,
+    # not the board's count, which ran ahead of a host still reading on a loaded machine
+    # (the signal then came before any shot was in: "0 < 0")
+    chars: list[str] = []
+    reader = threading.Thread(target=lambda: chars.extend(iter(lambda: proc.stderr.read(1),
+                                                               "")), daemon=True)
+    reader.start()
+
+    def host_received() -> int:
+        return max(map(int, re.findall(r"(\d+)/400", "".join(chars))), default=0)
+
+    deadline = time.monotonic() + 120
+    while host_received() < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
+    proc.wait(timeout=60)
+    reader.join(10)
+    proc.stdout.close()
+    proc.stderr.close()
+    err = "".join(chars)
     assert proc.returncode == code, err
     assert "Traceback" not in err and "saved in" in err
     with h5py.File(out, "r") as f:

@@ -197,6 +197,7 @@ COMMANDS = {  # argv before the output path, and whether the command has --force
     "reconstruct --plot": ["reconstruct", "{scan}", "--plot"],
     "db export --csv": ["db", "export", "{scan_id}", "--db", "{db}", "--csv"],
     "db export --ply": ["db", "export", "{scan_id}", "--db", "{db}", "--ply"],
+    "db export --mcap": ["db", "export", "{scan_id}", "--db", "{db}", "--mcap"],
 }
 
 
@@ -224,11 +225,13 @@ def test_proc_links_are_refused_by_the_command_before_the_board_is_opened(capsys
 
 
 @pytest.mark.parametrize("command", ["reconstruct --ply", "reconstruct --plot",
-                                     "db export --csv", "db export --ply"])
+                                     "db export --csv", "db export --ply",
+                                     "db export --mcap"])
 @pytest.mark.parametrize("kind", ["new", "regular", "symlink to regular"])
 def test_an_export_replaces_a_regular_file_atomically_and_writes_through_a_link(
         command, kind, inputs, tmp_path, capsys):
-    suffix = {"--ply": ".ply", "--plot": ".png", "--csv": ".csv"}[command.split()[-1]]
+    suffix = {"--ply": ".ply", "--plot": ".png", "--csv": ".csv",
+              "--mcap": ".mcap"}[command.split()[-1]]
     path = make_target(kind, tmp_path, "out" + suffix)
     argv = [a.format(**inputs) for a in COMMANDS[command]]
     rc = main([*argv, str(path)])

@@ -82,6 +82,8 @@ bool dmdsm_core_arm(struct dmdsm_core *c, uint32_t n_shots)
     c->shots_remaining = n_shots;
     c->shot_id = 0;
     reset_average(c);
+    c->last_edge = 0;
+    c->laser_period = 0;
     c->state = DMDSM_STATE_ARMED;
     c->armed_at = dmdsm_core_now(c);
     c->ops->arm_capture(c->ops->ctx, &c->cfg);
@@ -142,6 +144,31 @@ static void emit_waveform(struct dmdsm_core *c)
     c->count.shots_sent++;
 }
 
+/* ticks the link takes for n bytes (0 when the board does not know its rate) */
+static uint64_t wire_ticks(const struct dmdsm_core *c, size_t n)
+{
+    uint32_t rate = c->info->link_bytes_per_s;
+    return rate ? ((uint64_t)n * c->info->tick_hz + rate - 1u) / rate : 0u;
+}
+
+/* A new average begun at this edge would wait on the board for the wire longer than one
+ * laser period: skip the edge, a later one is ready as the wire frees. The waveform that
+ * waits is then never more than one laser period old when it starts out, yet the wire
+ * idles at no time (the edge skipped would have been followed by one ready in time). */
+static bool too_early(const struct dmdsm_core *c, uint64_t edge)
+{
+    if (c->wave_count == 0 || c->laser_period == 0 || c->info->link_bytes_per_s == 0)
+        return false;
+    /* when the waiting waveform will be out: it is on the wire, or next after a control frame */
+    uint64_t free_at = c->tx_end;
+    if (!c->tx_wave)
+        free_at = (c->tx_end > edge ? c->tx_end : edge) + wire_ticks(c, c->wave_len[c->wave_head]);
+    uint64_t burst = (uint64_t)(c->cfg.n_samples - c->cfg.pretrigger) * c->cfg.sample_rate_div *
+                     c->info->tick_hz / c->info->adc_rate_hz;
+    uint64_t ready_by = edge + (uint64_t)c->cfg.n_average * c->laser_period + burst;
+    return ready_by < free_at;
+}
+
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
                              uint32_t edge_ticks, uint16_t phase, enum dmdsm_capture result)
 {
@@ -150,14 +177,19 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
     c->count.triggers++;
     uint64_t edge = dmdsm_core_extend(dmdsm_core_now(c), edge_ticks);
     c->armed_at = edge;
+    if (c->last_edge && edge > c->last_edge && edge - c->last_edge < c->info->tick_hz)
+        c->laser_period = (uint32_t)(edge - c->last_edge);
+    c->last_edge = edge;
     if (result == DMDSM_CAPTURE_OVERRUN) {
         c->count.adc_overruns++;
         c->last_error = DMDSM_ERROR_ADC_OVERRUN;
     } else if (result != DMDSM_CAPTURE_OK) { /* never averaged: its samples may be stale */
         c->count.integrity_faults++;
         c->last_error = DMDSM_ERROR_SAMPLE_INTEGRITY;
-    } else if (c->n_in_avg == 0 && c->wave_count == DMDSM_CORE_WAVE_SLOTS) {
-        /* every slot still waits for the link: skip this shot rather than start an average
+    } else if (c->n_in_avg == 0 &&
+               (c->wave_count == DMDSM_CORE_WAVE_SLOTS || too_early(c, edge))) {
+        /* every slot still waits for the link (or the one waiting will be out only later
+         * than a later shot could be ready): skip this shot rather than start an average
          * that could not be sent. Only this core fills the slots, so an average begun with
          * one free always has it when it ends: no waveform is ever dropped, and shot ids
          * count waveforms sent. */
@@ -201,9 +233,11 @@ static void pump_tx(struct dmdsm_core *c)
     }
     if (c->ctl_count) {
         c->tx_ctl = true;
+        c->tx_end = dmdsm_core_now(c) + wire_ticks(c, c->ctl_len[c->ctl_head]);
         c->ops->tx_start(c->ops->ctx, c->ctl[c->ctl_head], c->ctl_len[c->ctl_head]);
     } else if (c->wave_count) {
         c->tx_wave = true;
+        c->tx_end = dmdsm_core_now(c) + wire_ticks(c, c->wave_len[c->wave_head]);
         c->ops->tx_start(c->ops->ctx, c->wave[c->wave_head], c->wave_len[c->wave_head]);
     }
 }

@@ -46,6 +46,10 @@ struct dmdsm_board_info {
     uint16_t max_samples; /* largest burst the board's buffers hold */
     uint8_t capture_error; /* enum dmdsm_error: why acquisition is unavailable (arm is NAKed
                             * with it), e.g. an ADC that failed at boot; 0 = available */
+    uint32_t link_bytes_per_s; /* the link's rate (8N1: baud / 10). The core times the shots
+                                * it takes on a busy link so a waveform is ready just as the
+                                * wire frees (fresh data, the wire kept full); 0 = unknown:
+                                * it fills every slot and skips shots only when none is free */
 };
 
 #endif /* DMDSM_BOARD_H */

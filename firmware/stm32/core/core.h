@@ -11,7 +11,7 @@
 
 #define DMDSM_FW_MAJOR 0
 #define DMDSM_FW_MINOR 2
-#define DMDSM_FW_PATCH 0
+#define DMDSM_FW_PATCH 1
 
 #ifndef DMDSM_CORE_MAX_SAMPLES
 #define DMDSM_CORE_MAX_SAMPLES 8192u /* accumulator length; boards may accept fewer */
@@ -83,6 +83,9 @@ struct dmdsm_core {
     unsigned wave_head, wave_count;
     bool tx_wave; /* the transfer on the wire is wave[wave_head] */
     bool tx_ctl;  /* the transfer on the wire is ctl[ctl_head] */
+    uint64_t tx_end;     /* ticks: when the transfer on the wire will be out (estimate) */
+    uint64_t last_edge;  /* ticks of the last laser edge since the arm (0: none yet) */
+    uint32_t laser_period; /* ticks between the last two laser edges (0: not known yet) */
 };
 
 /* set up with default configuration, state idle */

@@ -68,6 +68,7 @@ class SensorBoard:
         self.link_bytes_per_s = link_bytes_per_s
         self.core = FirmwareCore(name="SIL sensor board (hil_sim)", tick_hz=TICK_HZ,
                                  adc_rate_hz=int(ADC_RATE_HZ), max_samples=max_samples)
+        self.core.set_link_rate(link_bytes_per_s)
         self.now = 0.0
         self.next_shot = 0.0
         self.link_credit = 0.0

@@ -51,6 +51,7 @@ def _load() -> ctypes.CDLL:
     lib.dmdsm_pc_capture.argtypes = [p, p, u32, u16, ctypes.c_int]
     lib.dmdsm_pc_sync_edges.argtypes = [p, p, ctypes.c_size_t]
     lib.dmdsm_pc_poll.argtypes = [p]
+    lib.dmdsm_pc_set_link_rate.argtypes = [p, u32]
     lib.dmdsm_pc_state.argtypes = [p]
     lib.dmdsm_pc_state.restype = u8
     return lib
@@ -84,6 +85,11 @@ class FirmwareCore:
     def set_ticks(self, ticks: int) -> None:
         """Set the device's 32-bit tick counter (wraps) and run its main loop once."""
         self._l.dmdsm_pc_set_ticks(self._dev, ticks & 0xFFFFFFFF)
+
+    def set_link_rate(self, bytes_per_s: float) -> None:
+        """Tell the board the rate (bytes/s) its link drains at, as a real board knows its
+        baud rate: it then times shots on a busy link so each waveform meets a free wire."""
+        self._l.dmdsm_pc_set_link_rate(self._dev, max(0, min(int(bytes_per_s), 0xFFFFFFFF)))
 
     def rx(self, data: bytes) -> None:
         """Bytes from the host."""

@@ -130,7 +130,7 @@ int main(void)
     boot_board_name(board_name, sizeof board_name,
                     clocks.rev_v ? BOARD " rev V" : BOARD " rev Y");
     info = (struct dmdsm_board_info){board_name, clocks.timclk_hz, capture_adc_rate_hz(),
-                                     8192u, capture_error()};
+                                     8192u, capture_error(), DMDSM_BAUD / 10u};
     dmdsm_core_init(&core, &ops, &info);
     capture_sync_to(&core);
     boot_report(&core);

@@ -65,7 +65,7 @@ struct dmdsm_pc *dmdsm_pc_new(const char *name, uint32_t tick_hz, uint32_t adc_r
     d->ops = ops_template;
     d->ops.ctx = d;
     strncpy(d->name, name, sizeof d->name - 1);
-    d->info = (struct dmdsm_board_info){d->name, tick_hz, adc_rate_hz, max_samples, 0};
+    d->info = (struct dmdsm_board_info){d->name, tick_hz, adc_rate_hz, max_samples, 0, 0};
     d->ticks = ticks;
     dmdsm_core_init(&d->core, &d->ops, &d->info);
     return d;
@@ -125,6 +125,11 @@ void dmdsm_pc_sync_edges(struct dmdsm_pc *d, const uint32_t *ticks, size_t n)
 {
     for (size_t i = 0; i < n; i++)
         dmdsm_core_sync_edge(&d->core, ticks[i]);
+}
+
+void dmdsm_pc_set_link_rate(struct dmdsm_pc *d, uint32_t bytes_per_s)
+{
+    d->info.link_bytes_per_s = bytes_per_s;
 }
 
 void dmdsm_pc_poll(struct dmdsm_pc *d)

@@ -93,7 +93,7 @@ static bool tx_busy(void *ctx)
 static const struct dmdsm_board_ops ops = {NULL, arm_capture, disarm_capture, now_ticks,
                                            tx_start, tx_busy, NULL};
 static const struct dmdsm_board_info info = {"QEMU mps2-an500 test pattern", SYSCLK_HZ,
-                                             3333333u, MAX_SAMPLES, 0};
+                                             3333333u, MAX_SAMPLES, 0, 0};
 
 /* the emulated laser and ADC: one burst per period while armed */
 static void trigger_poll(void)

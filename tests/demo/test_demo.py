@@ -20,6 +20,7 @@ def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
     # stage 6's campaign at four levels and `make check-marlin` running too
     r = subprocess.run([sys.executable, "-m", "dmdsm.host", "demo", "--out", str(out)],
                        capture_output=True, text=True, timeout=3600)
+    assert (out / "summary.json").is_file(), (r.returncode, r.stdout[-3000:], r.stderr[-3000:])
     summary = json.loads((out / "summary.json").read_text())
     st = summary["stages"]
     assert st["1"]["ok"], r.stdout + r.stderr

@@ -126,7 +126,10 @@ def test_stop_from_a_second_terminal_ends_the_owners_work(emu):
 
     def owner():
         with StageClient(emu.stage) as st:
-            st.move(x=250, feed_mm_min=900)
+            # a slow move (about 170 s of stage time, 40 s of wall time at 4x): the stop
+            # process must find it running even when starting Python takes many seconds on a
+            # loaded machine (at 900 mm/min it had ended before the stop arrived there)
+            st.move(x=250, feed_mm_min=90)
             try:
                 st.wait()
             except StageStopped as e:

@@ -191,7 +191,10 @@ def test_stamps_at_the_link_limit_against_the_truth_within_their_sigma():
     what = (rms_z, err.mean() * 1e3, err.std() * 1e3, np.median(std) * 1e3, len(recs))
     assert len(recs) > 1000 and np.all(std > 0), what
     assert np.all(np.diff([r.host_s for r in recs]) > 0), what  # a refit never steps back
-    assert np.sqrt(np.mean(err ** 2)) < 0.4e-3, what   # was 1.1 ms (17 ms)
+    # 0.13-0.2 ms on an idle machine, 0.46 ms with two benchmarks beside it (the emulator's
+    # loop, the truth here, then reads its clock late too); a stamp held on a drifting
+    # floor gave 1.6 ms, the earlier fit 1.1 ms (17 ms)
+    assert np.sqrt(np.mean(err ** 2)) < 0.8e-3, what
     assert np.median(std) < 0.3e-3, what               # was 0.61 ms
     # one run's errors are strongly correlated (one line, refitted slowly): over runs of
     # 20-120 s RMS z came out 0.7-1.4, pooled over runs ~1.0, so the band is wide

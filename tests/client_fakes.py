@@ -17,7 +17,10 @@ NO_CHANGE = {"triggers_skipped": 0, "adc_overruns": 0, "integrity_faults": 0}
 class FakeSensor:
     """A sensor board streaming waveforms on a clock of 240 MHz ticks while `motion` runs,
     with one X STEP burst report per stream (`edges_off` steps off the motion's count) and
-    the waveform times shifted by `jump_s` (a board whose clock restarted)."""
+    the waveform times shifted by `jump_s` (a board whose clock restarted). The motion's
+    first step comes FIRST_STEP_S (s) after the arm."""
+
+    FIRST_STEP_S = 0.02
 
     def __init__(self, motion, jump_s=0.0, edges_off=0):
         self.identity = SimpleNamespace(tick_hz=240_000_000, adc_rate_hz=120_000_000)
@@ -47,9 +50,9 @@ class FakeSensor:
 
     def stream_stop(self):
         """Waveforms every 12 ms since stream_start, their step counts from the motion that
-        started 20 ms after the arm; no device counter changed."""
+        started FIRST_STEP_S after the arm; no device counter changed."""
         t1 = time.monotonic()
-        start = self.t0 + 0.02  # the first step, after the first waveforms
+        start = self.t0 + self.FIRST_STEP_S  # the first step, after the first waveforms
         self.motion_syncs.append(SimpleNamespace(
             burst_id=len(self.motion_syncs), first_edge=self.ticks(start),
             last_edge=self.ticks(start + self.motion.last_step_s),

@@ -1,9 +1,11 @@
 """Fly scanning: each plan line is one constant-speed X move while the sensor streams, each
 waveform placed at the position it was fired at; stored and resumed line by line.
 
-Per line: move to the run-up start and stop (M400); arm continuously; G1 through the line at
-the speed that spaces the waveforms step_mm apart; M400; wait for the X STEP burst's
-motion_sync; disarm. The line is kept only if every waveform arrived (no shot-id gap, no
+Per line: move to the run-up start and stop (M400); wait until the sensor board's clock
+shows the X STEP input quiet for sync_quiet_ms (the move's burst has ended there, so the
+line's steps open a burst of their own); arm continuously; G1 through the line at the speed
+that spaces the waveforms step_mm apart; M400; wait for the X STEP burst's motion_sync;
+disarm. The line is kept only if every waveform arrived (no shot-id gap, no
 device drop, overrun or integrity fault), exactly one X burst of the planned step count came
 after the arm, its duration fits the planner model, and the waveforms' clock agrees with the
 clock sync; otherwise it is measured again (at most RETRIES times). Its waveforms inside the
@@ -22,7 +24,7 @@ import numpy as np
 from dmdsm.marlin_patch import MachineLimits
 
 from ..links.interfaces import Stage, StreamSensor
-from ..links.sensor import CLOCK_SPACING_S, fit_clock
+from ..links.sensor import CLOCK_SPACING_S, SPEC, fit_clock
 from ..links.shots import LOSS_COUNTERS
 from ..links.stage import StageStopped
 from ..links.transport import LinkError
@@ -226,6 +228,9 @@ class FlyRun:
         self.v, self.a = fly_speed(plan, machine)  # mm/s, mm/s^2
         self.spu = machine.steps_per_unit[machine.axis("X")]  # X steps/mm
         self.pending: MeasuredLine | None = None
+        # device ticks of the stage's last X step, when known (a kept line's burst end, the
+        # stage standing since); None after the executor moved it (M400: earlier than now)
+        self.x_last_tick: int | None = None
 
     def todo(self) -> list[FlyLine]:
         """The lines after the last one in the file."""
@@ -304,6 +309,7 @@ class FlyRun:
                     timing["acquire"] = time.monotonic() - t1
                     self.exchanges = self.exchanges[-400:]
                     self.clock = fit_clock(self.exchanges)
+            self.x_last_tick = None  # the moves below step X at unknown device ticks
             if attempts > 1 and line.joined:  # back along the line itself (checked with
                 back = line_path(line, self.plan, self.machine)  # the plan), to its start
                 for bx, by in zip(back.x[-2::-1], back.y[-2::-1]):
@@ -333,20 +339,48 @@ class FlyRun:
         raise FlyScanError(f"fly line {line.index} (angle {p0.theta_deg:g} deg, level "
                            f"{p0.level}) failed {RETRIES} times: {reasons[-1]}")
 
+    def x_quiet(self, exchange: list[tuple[float, float, float]]
+                ) -> list[tuple[float, float, float]]:
+        """A clock exchange (host s, device ticks, RTT s) made once the sensor board's X STEP
+        input has been quiet for sync_quiet_ms since the stage's last X step, starting from
+        `exchange` (made with the stage at rest). The board ends a burst only after that
+        quiet time, so a line armed sooner merges its steps into the burst of the move that
+        brought the stage there (one burst, begun before the arm: "got none"). The last step
+        is self.x_last_tick if known, else at most the tick of `exchange` (the stage's M400
+        answered before it was sent); the wait is on the board's clock, so it holds at any
+        emulator speed, and it ends early (the line then checked as usual) if that clock
+        goes back (a reset) or SYNC_WAIT_S passes."""
+        quiet = SPEC.sync_quiet_ms * 1e-3 * self.tick_hz  # device ticks
+        last = self.x_last_tick if self.x_last_tick is not None else exchange[0][1]
+        end = time.monotonic() + SYNC_WAIT_S
+        while last <= exchange[0][1] < last + quiet and time.monotonic() < end:
+            left_s = (last + quiet - exchange[0][1]) / self.clock.ticks_per_s  # host s
+            time.sleep(min(max(left_s, 1e-3), SYNC_WAIT_S))
+            exchange = self.sensor.clock_exchanges(1)
+        return exchange
+
     def measure(self, line: FlyLine, motion: LineMotion, path: LinePath | None = None,
                 z_mm: float | None = None) -> dict:
         """One pass along the line (the stage at motion.x0, at rest), sweeping to motion.x1
         at motion.v (mm/s) along `path`: the kept waveforms and where they were, or
-        LineRejected. A clock_sync exchange just before the arm and one just after the
-        disarm bracket the line in the device's clock (appended to self.exchanges for the
-        drift fit). A polyline's shots are placed by their counted X on the path, and its
-        timing is modelled along the path (the feed rate is the path's speed); no path: X
-        alone at the line's Y."""
+        LineRejected. A clock_sync exchange just before the arm (once the X STEP input is
+        quiet: x_quiet) and one just after the disarm bracket the line in the device's
+        clock (appended to self.exchanges for the drift fit). A polyline's shots are placed
+        by their counted X on the path, and its timing is modelled along the path (the feed
+        rate is the path's speed); no path: X alone at the line's Y."""
         if path is None:
             path = LinePath(np.array([motion.x0, motion.x1]), np.full(2, line.points[0].y))
         stage, sensor, plan, clock, v = self.stage, self.sensor, self.plan, self.clock, motion.v
+        before = self.x_quiet(sensor.clock_exchanges(1))
         bursts_before = {m.burst_id for m in sensor.motion_syncs}
-        before = sensor.clock_exchanges(1)
+        self.x_last_tick = None  # the line's moves step X from here on
+
+        def line_bursts() -> list:
+            """The bursts reported since the arm that began after it (the line's own: a
+            burst of the stage's earlier moves began before it, whatever its count)."""
+            return [m for m in list(sensor.motion_syncs)
+                    if m.burst_id not in bursts_before and m.first_edge > before[0][1]]
+
         sensor.stream_start()
         try:
             feed = round(v * 60)
@@ -357,8 +391,7 @@ class FlyRun:
             stage.wait()
             end = time.monotonic() + SYNC_WAIT_S
             while time.monotonic() < end:  # the burst is reported once X is quiet for 20 ms
-                new = [m for m in list(sensor.motion_syncs) if m.burst_id not in bursts_before]
-                if any(m.edges == motion.n for m in new):
+                if any(m.edges == motion.n for m in line_bursts()):
                     break
                 time.sleep(0.005)
         finally:
@@ -378,8 +411,7 @@ class FlyRun:
                                "waveform times do not lie between the clock syncs around it")
         # the line's burst began after the arm (the exchange just before it), perhaps
         # before the first shot: a joined line's first block starts as soon as it is queued
-        new = [m for m in list(sensor.motion_syncs)
-               if m.burst_id not in bursts_before and m.first_edge > before[0][1]]
+        new = line_bursts()
         if len(new) != 1 or new[0].edges != motion.n:
             got = ", ".join(str(m.edges) for m in new) or "none"
             raise LineRejected(f"expected one X step burst of {motion.n} steps after the arm, got "
@@ -411,6 +443,7 @@ class FlyRun:
         keep = cruise & (x >= lo) & (x <= hi)
         if not keep.any():
             raise LineRejected("no waveform fell inside the line's cruise")
+        self.x_last_tick = int(new[0].last_edge)  # kept: the stage stands at its end
         idx = np.nonzero(keep)[0]
         return {"samples": np.stack([waves[i].samples.astype(np.uint16) for i in idx]),
                 "x": x[idx], "y": path.y_at(x[idx]), "timestamp": ts[idx],

@@ -75,11 +75,12 @@ class PtyServer:
         self.lock = threading.Lock()  # held while the simulation steps (truth() readers)
         # what a user does by hand on the real machine: `echo rig_vertical > DIR/scene`
         self.scene_file = d / "scene" if d else None
-        self._scene_mtime = 0.0
+        self._scene_mtime: tuple[int, int] = (0, 0)
         self._scene_check = 0.0
         if self.scene_file is not None:  # the file names what is mounted now
             self.scene_file.write_text(sim.cfg.scene + "\n")
-            self._scene_mtime = self.scene_file.stat().st_mtime
+            st = self.scene_file.stat()
+            self._scene_mtime = (st.st_mtime_ns, st.st_ino)
 
     def mount(self, objects: list) -> None:
         """Put other objects on the turntable (the user re-mounting the rig or an object)."""
@@ -96,7 +97,8 @@ class PtyServer:
             return
         self._scene_check = now
         try:
-            mtime = self.scene_file.stat().st_mtime
+            st = self.scene_file.stat()
+            mtime = (st.st_mtime_ns, st.st_ino)  # a file renamed over it is a change too
         except OSError:
             return
         if mtime == self._scene_mtime:

@@ -15,13 +15,13 @@ import io
 import json
 import re
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
 import numpy as np
 
+from ..commands.campaign import mount
 from ..commands.errors import Terminated
 from ..commands.sim import EDGE_AT, RANGING_AT_MM, TIP_AT
 from ..report.page import Section
@@ -136,8 +136,9 @@ class Demo:
     def mount(self, scene: str) -> None:
         """The user jogs the sensor back and puts another object on the turntable."""
         self.run("stage", "move", "-y", "150", *self.ports[2:])
-        (self.out / "ports" / "scene").write_text(scene + "\n")
-        time.sleep(0.5)  # the emulator checks the file every 0.2 s
+        # atomically (a plain write let the emulator read the truncated, empty file); the
+        # emulator reads the file again when the next command's first byte arrives
+        mount(self.out / "ports" / "scene", scene)
 
     def close(self) -> None:
         """Stop the emulator."""

@@ -150,13 +150,18 @@ def check_output(path: Path, force: bool = True, flag: str = "-o") -> None:
     if not force and os.path.lexists(path):
         raise OutputError(f"{path} exists and holds earlier data: name another file, or "
                           f"pass --force to overwrite it")
-    target = Path(os.path.realpath(path))
-    folder = target.parent
+    check_folder(path, f"write {path}", f"another file for {flag}", flag)
+
+
+def check_folder(path: Path, action: str, another: str, flag: str) -> None:
+    """OutputError unless the folder `path` goes into exists and this user may write in it;
+    `action` ("write FILE") and `another` ("another file for -o") word the one line."""
+    folder = Path(os.path.realpath(path)).parent
     if not folder.is_dir():
-        raise OutputError(f"cannot write {path}: the folder {path.parent} does not exist; "
-                          f"create it or name another file for {flag}")
+        raise OutputError(f"cannot {action}: the folder {Path(path).parent} does not exist; "
+                          f"create it or name {another}")
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError(f"cannot write {path}: no permission to write in {folder}; give "
+        raise OutputError(f"cannot {action}: no permission to write in {folder}; give "
                           f"another {flag}")
 
 

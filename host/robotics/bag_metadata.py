@@ -17,7 +17,7 @@ import os
 import re
 from pathlib import Path
 
-from ..files import OutputError, atomic_output, check_output, one_line, write_failed
+from ..files import OutputError, atomic_output, check_folder, check_output, one_line, write_failed
 
 VERSION = 5          # the metadata version ROS 2 Humble writes and reads
 METADATA = "metadata.yaml"
@@ -41,13 +41,7 @@ def bag_file(bag: Path, flag: str = "--bag") -> Path:
         for path in (mcap, bag / METADATA):
             check_output(path, True, flag)
         return mcap
-    parent = Path(os.path.realpath(bag)).parent
-    if not parent.is_dir():
-        raise OutputError(f"cannot create the bag {bag}: the folder {bag.parent} does not "
-                          f"exist; create it or name another {flag}")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(f"cannot create the bag {bag}: no permission to write in {parent}; "
-                          f"give another {flag}")
+    check_folder(bag, f"create the bag {bag}", f"another {flag}", flag)
     return mcap
 
 

@@ -3,10 +3,10 @@ lines that follow the outline it measured, at the table angles that see each par
 
 Pure functions on numpy arrays. A follow line keeps one table angle and one level; along it
 the sensor moves X and Y together so the beam meets the outline `standoff_mm` away. Its Y
-never comes nearer than that (a lower envelope of the wanted Y with a bounded slope, then
-smoothed and lowered until it is below again), every junction of it can be taken at the line
-speed by Marlin's planner (junction deviation), and X always advances, so the counted X
-steps place each shot (docs/scanning.md).
+never comes nearer than that (under a lower envelope of the wanted Y with a bounded slope),
+every junction of it can be taken at the line speed by Marlin's planner (junction
+deviation), and of such lines it runs the nearest (a linear program). X always advances,
+so the counted X steps place each shot (docs/scanning.md).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
+from scipy.optimize import linprog
 
 from ..calibration.geometry import rodrigues
 from .fly import junction_speed_mm_s
@@ -190,9 +190,10 @@ def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: flo
              junction_deviation_mm: float, every: int = 3,
              y_cap: np.ndarray | None = None) -> np.ndarray:
     """Sensor Y (mm) per column X (xs, evenly spaced) never above y_want (farther from the
-    object; NaN: no surface there), with slope <= MAX_SLOPE, smooth enough that Marlin's
-    planner takes every junction of the vertices (every `every`-th column) at v_mm_s; the
-    line flat at its lowest wanted Y if no smoothing is enough."""
+    object; NaN: no surface there), with slope <= MAX_SLOPE, straight between its vertices
+    (every `every`-th column, FlyLine.vertices) and bent at each so little that Marlin's
+    planner takes every junction at v_mm_s: of those lines, the one nearest the surface
+    (a linear program); the line flat at its lowest wanted Y if the solver fails."""
     ok = np.isfinite(y_want)
     if not ok.any():
         raise ValueError("the beam meets nothing along the line")
@@ -201,20 +202,55 @@ def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: flo
     if y_cap is not None:  # and never into the keep-out, beside the surface too
         filled = np.minimum(filled, y_cap)
     env = np.min(filled[None, :] + MAX_SLOPE * np.abs(xs[:, None] - xs[None, :]), axis=1)
-    for sigma in (1.0, 2.0, 4.0, 8.0):
-        y = gaussian_filter1d(env, sigma, mode="nearest")
-        y = y - max(float(np.max(y - env)), 0.0)
-        keep = np.arange(len(xs)) % every == 0
-        keep[[0, -1]] = True  # the vertices the line runs through (FlyLine.vertices)
-        vx = xs[keep]
-        vy = np.interp(vx, xs, y)
-        seg = np.column_stack([np.diff(vx), np.diff(vy)])
-        seg = np.vstack([[1.0, 0.0], seg, [1.0, 0.0]])  # the flat run-up and run-out
-        seg /= np.linalg.norm(seg, axis=1, keepdims=True)
-        if all(junction_speed_mm_s(seg[i], seg[i + 1], accel_mm_s2, junction_deviation_mm)
-               >= v_mm_s for i in range(len(seg) - 1)):
-            return y
-    return np.full(len(xs), float(np.min(env)))
+    flat = np.full(len(xs), float(np.min(env)))
+    keep = np.arange(len(xs)) % every == 0
+    keep[[0, -1]] = True
+    vi = np.flatnonzero(keep)
+    y = _nearest_bent_line(xs, env, vi, _max_bend_rad(v_mm_s, accel_mm_s2,
+                                                      junction_deviation_mm))
+    if y is None or not _takes_at_speed(xs[vi], y[vi], v_mm_s, accel_mm_s2,
+                                        junction_deviation_mm):
+        return flat
+    return np.minimum(y, env)  # the solver's last ulp
+
+
+def _max_bend_rad(v_mm_s: float, accel_mm_s2: float, junction_deviation_mm: float) -> float:
+    """The largest turn (rad) between two joined moves that Marlin's junction deviation lets
+    the planner take at v_mm_s (junction_speed_mm_s solved for the angle), with a margin."""
+    k = v_mm_s ** 2 / (accel_mm_s2 * junction_deviation_mm)
+    return 0.9 * 2.0 * math.acos(min(k / (1.0 + k), 1.0))
+
+
+def _nearest_bent_line(xs: np.ndarray, env: np.ndarray, vi: np.ndarray, bend_rad: float
+                       ) -> np.ndarray | None:
+    """Y (mm) per column of the line through vertices at columns vi (straight between them)
+    with the largest sum of Y, under env at every column, |slope| <= MAX_SLOPE and each
+    slope within bend_rad of the one before (flat run-up and run-out at the ends); since
+    |atan a - atan b| <= |a - b| every turn is then within bend_rad. None if unsolved."""
+    m, vx = len(vi), xs[vi]
+    W = np.zeros((len(xs), m))  # column Y from vertex Y: linear between vertices
+    seg = np.clip(np.searchsorted(vx, xs, side="right") - 1, 0, m - 2)
+    t = (xs - vx[seg]) / (vx[seg + 1] - vx[seg])
+    W[np.arange(len(xs)), seg] = 1.0 - t
+    W[np.arange(len(xs)), seg + 1] = t
+    D = np.zeros((m - 1, m))  # slopes of the segments
+    idx = np.arange(m - 1)
+    D[idx, idx], D[idx, idx + 1] = -1.0 / np.diff(vx), 1.0 / np.diff(vx)
+    B = np.vstack([D[:1], np.diff(D, axis=0), -D[-1:]])  # turns, with the flat ends
+    A = np.vstack([W, D, -D, B, -B])
+    b = np.concatenate([env, np.full(2 * (m - 1), MAX_SLOPE), np.full(2 * len(B), bend_rad)])
+    r = linprog(-W.sum(axis=0), A_ub=A, b_ub=b, bounds=[(None, None)] * m, method="highs")
+    return W @ r.x if r.status == 0 else None
+
+
+def _takes_at_speed(vx: np.ndarray, vy: np.ndarray, v_mm_s: float, accel_mm_s2: float,
+                    junction_deviation_mm: float) -> bool:
+    """True if Marlin's planner takes every junction of the vertices (and of the flat run-up
+    and run-out) at v_mm_s."""
+    seg = np.vstack([[1.0, 0.0], np.column_stack([np.diff(vx), np.diff(vy)]), [1.0, 0.0]])
+    seg /= np.linalg.norm(seg, axis=1, keepdims=True)
+    return all(junction_speed_mm_s(seg[i], seg[i + 1], accel_mm_s2, junction_deviation_mm)
+               >= v_mm_s for i in range(len(seg) - 1))
 
 
 def incidence_cos(outline: Outline, theta_deg: float, v: np.ndarray, n: np.ndarray

@@ -40,7 +40,7 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     follow = p["point_index"] >= a["first_look_lines"]
     ys = [np.ptp(p["stage_position_mm"][p["point_index"] == i, 1])
           for i in np.unique(p["point_index"][follow])]
-    assert max(ys) > 0.3  # lines that move Y as well as X
+    assert max(ys) > 0.3, (ys, a)  # lines that move Y as well as X
     # each waveform where the mean of its shots' true positions was (the stage's 2 um
     # scatter aside): counted X on the path gives Y too
     sh = np.array(shots)
@@ -107,7 +107,10 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     assert whole.entry["status"] == "complete"
     idx = sorted(set(whole.points["point_index"].tolist()))
     a = summary["auto"]
-    assert idx == list(range(n_look + a["lines"] + a["hole_lines"]))
+    # (a far look after the first look, where that left the outline open, is numbered in
+    # first_look_lines: its lines come before the follow lines)
+    assert a["first_look_lines"] == n_look + a["far_look_lines"]
+    assert idx == list(range(a["first_look_lines"] + a["lines"] + a["hole_lines"]))
     # the command built the object's 3D model from it: on the true block where it measured
     # (the first look's levels are 10 mm apart here: between them the surface is closed
     # across, not measured; bench/model.py gives the figures of a whole auto plan)

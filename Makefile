@@ -135,7 +135,7 @@ fuzz: build
 # aeon's numba kernels (BOSS, MiniRocket) compile once, beside the builds and lint, into
 # numba's on-disk cache: cold they take ~3 min of CPU, and each test worker and the demo
 # would otherwise compile them again at the same time (dmdsm.host.classify.warm).
-QUIET_TESTS := tests/e2e/test_auto_scan.py tests/test_live.py tests/test_live_server.py
+QUIET_TESTS := tests/test_live.py tests/test_live_server.py
 
 test: deps
 	@mkdir -p build; $(PY) -m dmdsm.host.classify.warm > build/warm.log 2>&1 & warm=$$!; \
@@ -144,8 +144,7 @@ test: deps
 	cat build/warm.log
 	@# the full demo (mostly waiting on the real-time emulator) runs beside the other tests;
 	@# QUIET_TESTS run after it, alone: their truth is the emulator's wall-clock pacing
-	@# (live stamps), or they showed a load-dependent result not yet understood (the auto
-	@# scan's follow lines came out flat in Y beside the demo; issue 32, see its note)
+	@# (live stamps)
 	@rc=0; drc=0; qrc=0; \
 	DMDSM_PROTO_TOOL=$(HOSTBUILD)/proto_tool $(PY) -m pytest -q -p no:cacheprovider tests/demo \
 	  > build/test-demo.log 2>&1 & demo=$$!; \

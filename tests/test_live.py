@@ -6,7 +6,6 @@ from contextlib import closing
 
 import numpy as np
 import pytest
-from live_helpers import EmulatorTimes
 from stamp_helpers import child_emulator
 
 from dmdsm.host.links.sensor import SensorClient
@@ -14,59 +13,56 @@ from dmdsm.host.links.stage import StageClient
 from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.robotics.live import LiveRecord, live
 from dmdsm.protocol import load_spec
-from dmdsm.sim.servers.emulator import Emulator
-from dmdsm.sim.servers.runner import SimConfig
 
 IDLE = load_spec().enums["state"]["idle"]
 
 
-@pytest.fixture
-def timed_emulator():
-    """Factory as tests/emulator_fixture.py's `emulator`, with EmulatorTimes installed before
-    the emulator starts (its pacing origin is taken as it starts): (emu, times)."""
-    started = []
-
-    def start(speed: float = 1.0, **kw) -> tuple[Emulator, EmulatorTimes]:
-        emu = Emulator(SimConfig(**kw), speed=speed)
-        times = EmulatorTimes(emu)
-        started.append(emu.start())
-        return emu, times
-
-    yield start
-    for emu in started:
-        emu.stop()
-
-
-def in_front_of_the_block(emu):
-    """Home, stand 7 mm in front of the aluminium block; a ranging calibration there."""
-    with StageClient(emu.stage) as st:
+def in_front_of_the_block(stage: str, sensor: str, truth_mm: float):
+    """Home, stand 7 mm in front of the aluminium block (truth_mm away once there: the
+    emulator's truth); a ranging calibration there."""
+    with StageClient(stage) as st:
         st.home()
         st.move(x=235, y=266, z=20, wait=True)
         st.wait()
-        with SensorClient(emu.sensor) as sc:
-            setup, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20},
-                                       emu.sim.truth()["distance_mm"], steps=6, step_mm=1.0,
-                                       shots=2, fit_c=False, lateral=5)
+        with SensorClient(sensor) as sc:
+            setup, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20}, truth_mm,
+                                       steps=6, step_mm=1.0, shots=2, fit_c=False, lateral=5)
         st.move(x=235, y=266, z=20, wait=True)
         st.wait()
     return setup
 
 
+def at_the_block_s_face(child) -> float:
+    """The true distance (mm) at the calibration's stand, read there from the emulator."""
+    with StageClient(child.stage) as st:
+        st.home()
+        st.move(x=235, y=266, z=20, wait=True)
+        st.wait()
+    return child.distance_mm()
+
+
 @pytest.mark.realtime
-def test_every_waveform_once_in_order_distances_and_stamps_against_the_truth(timed_emulator):
-    emu, times = timed_emulator(seed=3)
-    setup = in_front_of_the_block(emu)
-    truth_mm = emu.sim.truth()["distance_mm"]
-    sc = SensorClient(emu.sensor)
-    sc.configure(n_samples=1024, n_average=4)
-    recs: list[LiveRecord] = []
-    backlog = []
-    lag0 = len(times.lags)
-    with closing(live(sc, setup)) as g:
-        for r in itertools.islice(g, 250):
-            recs.append(r)
-            backlog.append(len(sc.stream))
-    assert sc.stream is None and sc.status()["state"] == IDLE  # closed: disarmed
+def test_every_waveform_once_in_order_distances_and_stamps_against_the_truth():
+    """The emulator in its own process, as `dmdsm sim` runs it: in the test's process its
+    loop shared the interpreter lock with the ranging, and on a loaded machine (CI) it read
+    the board's clock ms late, off its own pacing (the truth here): RMS z 11.5."""
+    with child_emulator(seed=3) as (port, child):
+        truth_mm = at_the_block_s_face(child)
+        setup = in_front_of_the_block(child.stage, port, truth_mm)
+        sc = SensorClient(port)
+        sc.configure(n_samples=1024, n_average=4)
+        recs: list[LiveRecord] = []
+        backlog = []
+        lag0 = child.truth().receives
+        with closing(live(sc, setup)) as g:
+            for r in itertools.islice(g, 250):
+                recs.append(r)
+                backlog.append(len(sc.stream))
+        assert sc.stream is None and sc.status()["state"] == IDLE  # closed: disarmed
+        # the truth's lag is the one while the board streams (from the arm on: after
+        # get_config, 16 clock exchanges and get_status)
+        times = child.truth(lag0 + 18)
+        sc.close()
     # one record per waveform, in order, none lost on the link or on the board
     assert [r.seq for r in recs] == list(range(250))
     assert all(r.lost_before == 0 and r.device_lost == 0 for r in recs)
@@ -81,16 +77,18 @@ def test_every_waveform_once_in_order_distances_and_stamps_against_the_truth(tim
         snr = np.array([r.snr_db[m] for r in recs], dtype=float)
         assert np.nanmedian(snr) > 10
     # stamps: the laser edge on the host's clock, against the emulator's truth, with the
-    # uncertainty reported holding. The truth's lag is the one while the board streams
-    # (from the arm on: after get_config, 16 clock exchanges and get_status): in this
-    # process the emulator's loop lags ~0.6 ms more then than over the set-up
-    lag = float(np.median(times.lags[lag0 + 18:]))
-    err = np.array([r.host_s - times.pacing(r.device_ticks / times.tick_hz) - lag
-                    for r in recs])
+    # uncertainty reported holding. The truth is known to within the emulator's lag
+    # scatter (ChildTimes.lag_sigma_s: 0.66 ms on an idle machine, its loop's steps; 8-140
+    # ms with two busy loops beside it), and the host's sigma grows with the scatter it
+    # sees in the exchanges (the link-limit test below checks the sigma more closely)
+    err = np.array([r.host_s for r in recs]) - times.laser_s([r.device_ticks for r in recs])
     std = np.array([r.host_std_s for r in recs])
-    assert np.all(std > 0) and np.all(std < 5e-3)
-    rms_z = float(np.sqrt(np.mean((err / std) ** 2)))
-    assert 0.3 < rms_z < 2.5, (rms_z, err.mean(), err.std(), std.mean())
+    what = (err.mean(), err.std(), np.median(std), std.max(), times.lag_sigma_s)
+    assert np.all(std > 0) and np.all(std < 5e-3 + 4 * times.lag_sigma_s), what
+    # no larger than the sigma reported and the truth's own allow; the sigma not inflated
+    rms_z = float(np.sqrt(np.mean(err ** 2 / (std ** 2 + times.lag_sigma_s ** 2))))
+    assert rms_z < 2.5, (rms_z, *what)
+    assert float(np.sqrt(np.mean((err / std) ** 2))) > 0.3, what
     # stamps never go back, whatever the refits did
     assert np.all(np.diff([r.host_s for r in recs]) > 0)
     # the epoch form differs from the monotonic one by one constant
@@ -99,7 +97,6 @@ def test_every_waveform_once_in_order_distances_and_stamps_against_the_truth(tim
     # each record was taken in after its frame left the board
     sent = np.array([times.sent[r.device_ticks] for r in recs])
     assert np.all(np.array([r.received_s for r in recs]) >= sent)
-    sc.close()
 
 
 def test_ctrl_c_and_close_disarm_the_board_and_the_next_stream_starts_from_zero(emulator):

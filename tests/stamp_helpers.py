@@ -72,12 +72,10 @@ class ChildEmulator:
         self.conn.send("distance")
         return self.conn.recv()
 
-    __call__ = truth  # child_emulator's truth()
-
 
 @contextmanager
 def child_emulator(seed: int = 3) -> Iterator[tuple[str, ChildEmulator]]:
-    """(sensor port, child) of an emulator in a child process; child() -> ChildTimes, and
+    """(sensor port, child) of an emulator in a child process: child.truth() -> ChildTimes,
     child.stage, child.distance_mm() for what stands in front of the sensor."""
     here, there = mp.get_context("spawn").Pipe()
     child = mp.get_context("spawn").Process(target=emulator_child, args=(there, seed),

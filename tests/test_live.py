@@ -17,28 +17,20 @@ from dmdsm.protocol import load_spec
 IDLE = load_spec().enums["state"]["idle"]
 
 
-def in_front_of_the_block(stage: str, sensor: str, truth_mm: float):
-    """Home, stand 7 mm in front of the aluminium block (truth_mm away once there: the
-    emulator's truth); a ranging calibration there."""
-    with StageClient(stage) as st:
-        st.home()
-        st.move(x=235, y=266, z=20, wait=True)
-        st.wait()
-        with SensorClient(sensor) as sc:
-            setup, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20}, truth_mm,
-                                       steps=6, step_mm=1.0, shots=2, fit_c=False, lateral=5)
-        st.move(x=235, y=266, z=20, wait=True)
-        st.wait()
-    return setup
-
-
-def at_the_block_s_face(child) -> float:
-    """The true distance (mm) at the calibration's stand, read there from the emulator."""
+def in_front_of_the_block(child) -> tuple:
+    """Home, stand 7 mm in front of the aluminium block; (a ranging calibration there, the
+    true distance there in mm, read from the emulator)."""
     with StageClient(child.stage) as st:
         st.home()
         st.move(x=235, y=266, z=20, wait=True)
         st.wait()
-    return child.distance_mm()
+        truth_mm = child.distance_mm()
+        with SensorClient(child.sensor) as sc:
+            setup, _ = calibrate_range(st, sc, {"X": 235, "Y": 266, "Z": 20}, truth_mm,
+                                       steps=6, step_mm=1.0, shots=2, fit_c=False, lateral=5)
+        st.move(x=235, y=266, z=20, wait=True)
+        st.wait()
+    return setup, truth_mm
 
 
 @pytest.mark.realtime
@@ -47,8 +39,7 @@ def test_every_waveform_once_in_order_distances_and_stamps_against_the_truth():
     loop shared the interpreter lock with the ranging, and on a loaded machine (CI) it read
     the board's clock ms late, off its own pacing (the truth here): RMS z 11.5."""
     with child_emulator(seed=3) as (port, child):
-        truth_mm = at_the_block_s_face(child)
-        setup = in_front_of_the_block(child.stage, port, truth_mm)
+        setup, truth_mm = in_front_of_the_block(child)
         sc = SensorClient(port)
         sc.configure(n_samples=1024, n_average=4)
         recs: list[LiveRecord] = []
@@ -171,7 +162,7 @@ def test_stamps_at_the_link_limit_against_the_truth_within_their_sigma():
     sim`), and the sigma reported is their scale. The earlier fit (midpoints of the quickest
     exchanges) had a median sigma of 0.61 ms, an error std of 1.09 ms, RMS z 0.61 (and once
     the board kept the wire always busy, no quick exchange at all: errors of 17 ms)."""
-    with child_emulator(seed=3) as (port, truth):
+    with child_emulator(seed=3) as (port, child):
         sc = SensorClient(port)
         sc.configure(n_samples=1024, n_average=1)
         recs: list[LiveRecord] = []
@@ -181,7 +172,7 @@ def test_stamps_at_the_link_limit_against_the_truth_within_their_sigma():
                 if r.received_s - recs[0].received_s > 20.0:  # ~1900 records; 200 exchanges
                     break
         sc.close()
-        times = truth()
+        times = child.truth()
     err = np.array([r.host_s for r in recs]) - times.laser_s([r.device_ticks for r in recs])
     std = np.array([r.host_std_s for r in recs])
     rms_z = float(np.sqrt(np.mean((err / std) ** 2)))

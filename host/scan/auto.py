@@ -202,7 +202,6 @@ def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: flo
     if y_cap is not None:  # and never into the keep-out, beside the surface too
         filled = np.minimum(filled, y_cap)
     env = np.min(filled[None, :] + MAX_SLOPE * np.abs(xs[:, None] - xs[None, :]), axis=1)
-    flat = np.full(len(xs), float(np.min(env)))
     keep = np.arange(len(xs)) % every == 0
     keep[[0, -1]] = True
     vi = np.flatnonzero(keep)
@@ -210,7 +209,7 @@ def follow_y(xs: np.ndarray, y_want: np.ndarray, v_mm_s: float, accel_mm_s2: flo
                                                       junction_deviation_mm))
     if y is None or not _takes_at_speed(xs[vi], y[vi], v_mm_s, accel_mm_s2,
                                         junction_deviation_mm):
-        return flat
+        return np.full(len(xs), float(np.min(env)))  # flat at the lowest wanted Y
     return np.minimum(y, env)  # the solver's last ulp
 
 

@@ -9,11 +9,12 @@ it has no slot for, ~95 waveforms/s at 2 Mbaud) and on-board averaging (16 shots
 Each: records/s, lost (shot-id gaps + the board's loss counters), latency p50/p99 from the
 laser edge (the emulator's truth) to the record leaving the generator and to its last
 message (/dmdsm/distance/us, after the waveform, the ranges and the OA distance) arriving
-at a foxglove.websocket.v1 client, beyond the frame's own time on the wire
-(2088 bytes at 200 kB/s), and from the frame's last byte leaving the board (p50, p99 after
-the first second of the stream, and that second's worst: the emulator's start-up); CPU per record
-(this process: reader, ranging, encoding, server); the host stamps against the truth (RMS z
-of error / reported sigma). Beside it, the plain `acquire` path for as many waveforms.
+at a foxglove.websocket.v1 client in its own process (as Foxglove is), beyond the frame's
+own time on the wire (2088 bytes at 200 kB/s), and from the frame's last byte leaving the
+board (p50, p99 after the first second of the stream, and that second's worst: the
+emulator's start-up); CPU per record (this process: reader, ranging, encoding, server; not
+the client's); the host stamps against the truth (RMS z of error / reported sigma). Beside
+it, the plain `acquire` path for as many waveforms.
 """
 
 from __future__ import annotations
@@ -58,10 +59,22 @@ def truth(t: dict, ticks: np.ndarray) -> np.ndarray:
     return t["wall0"] + (ticks / t["tick_hz"] - t["sim0"]) + t["lag"]
 
 
-def run_live(sensor: str, setup: object, n_average: int, seconds: float) -> dict:
-    """One rate: live() into the server, a websocket client reading; the raw figures."""
+def client_child(url: str, conn: object) -> None:
+    """A foxglove.websocket.v1 subscriber in its own process, as Foxglove or a controller
+    is: subscribes, then sends back the arrival times (host monotonic s, a clock shared by
+    every process) of the first n records' last messages."""
     from live_helpers import WsClient
 
+    client = WsClient(url)
+    conn.send(client.subscribed.wait(10))
+    n = conn.recv()
+    got = client.wait_for(LAST_TOPIC, n, 30)
+    client.close()
+    conn.send([a for _, _, a in got])
+
+
+def run_live(sensor: str, setup: object, n_average: int, seconds: float) -> dict:
+    """One rate: live() into the server, a websocket client reading; the raw figures."""
     from dmdsm.host.links.sensor import SensorClient
     from dmdsm.host.robotics.live import live
     from dmdsm.host.robotics.server import LiveServer
@@ -69,8 +82,13 @@ def run_live(sensor: str, setup: object, n_average: int, seconds: float) -> dict
     sc = SensorClient(sensor)
     sc.configure(n_samples=1024, n_average=n_average)
     srv = LiveServer("127.0.0.1", 0, sample_rate_hz=float(sc.identity.adc_rate_hz))
-    client = WsClient(f"ws://127.0.0.1:{srv.port}")
-    client.subscribed.wait(10)
+    ctx = mp.get_context("spawn")
+    here, there = ctx.Pipe()
+    reader = ctx.Process(target=client_child, args=(f"ws://127.0.0.1:{srv.port}", there),
+                         daemon=True)
+    reader.start()
+    if not here.recv():
+        raise SystemExit("the websocket client could not subscribe to the live server")
     recs, gen_t = [], []
     cpu0, t0 = time.process_time(), time.monotonic()
     with closing(live(sc, setup)) as g:
@@ -81,14 +99,15 @@ def run_live(sensor: str, setup: object, n_average: int, seconds: float) -> dict
             if gen_t[-1] - t0 > seconds:
                 break
     cpu, wall = time.process_time() - cpu0, time.monotonic() - t0
-    got = client.wait_for(LAST_TOPIC, len(recs), 30)
-    client.close()
+    here.send(len(recs))
+    arrived = here.recv()
+    reader.join(10)
     srv.close()
     sc.close()
     for r in recs:
         r.samples = None  # the figures need no samples
-    return {"recs": recs, "gen_t": np.array(gen_t), "ws_t": np.array([a for _, _, a in got]),
-            "ws_n": len(got), "cpu": cpu, "wall": wall}
+    return {"recs": recs, "gen_t": np.array(gen_t), "ws_t": np.array(arrived),
+            "ws_n": len(arrived), "cpu": cpu, "wall": wall}
 
 
 def run_acquire(sensor: str, n_average: int, n: int) -> dict:

@@ -68,3 +68,31 @@ def test_a_board_without_a_method_fails_the_check():
     with pytest.raises(AssertionError):
         test_each_board_has_its_interface_methods_with_the_same_parameters(
             StageBoardInterface, Broken)
+
+
+def test_the_sensor_emulator_computes_samples_only_for_the_shots_its_core_averages(
+        monkeypatch):
+    """At the link's limit the core skips ~9 laser shots in 10 (no free slot); the emulator
+    asks the core first (dmdsm_core_takes_shot) and computes no waveform for those, yet the
+    core counts them as before and sends the same stream."""
+    from dmdsm.protocol import FrameDecoder, Message, encode_frame
+    from dmdsm.sim.boards.sensor import core_board
+
+    computed = []
+    real = core_board.synthesize
+    monkeypatch.setattr(core_board, "synthesize",
+                        lambda *a, **k: computed.append(1) or real(*a, **k))
+    sim = Simulation(SimConfig(seed=1))
+    sim.write("sensor", encode_frame(Message("arm", seq=1, n_shots=0)))
+    decoder, waves = FrameDecoder(), []
+    for _ in range(100):  # 1 s of simulated time
+        sim.advance(0.01)
+        waves += [m for m in decoder.feed(sim.read("sensor")) if m.name == "waveform"]
+    assert len(waves) >= 80  # ~95/s at 2 Mbaud
+    assert [w.shot_id for w in waves] == list(range(len(waves)))
+    n_average = int(waves[-1].n_average)
+    skipped = int(waves[-1].triggers_skipped)
+    assert skipped > 5 * len(waves)  # the link, not the laser, sets the rate
+    # the shots of every waveform sent were computed; beyond them only those of the
+    # waveforms still waiting in the board's two slots and of one open average
+    assert len(waves) * n_average <= len(computed) <= (len(waves) + 3) * n_average

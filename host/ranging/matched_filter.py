@@ -14,6 +14,7 @@ instead of an inverse DFT at every grid point.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,7 +137,7 @@ class MatchedFilter:
         lo, hi = gate or (0, n)
         center = self.t.center
         # lags whose arrival (k + center) lies in the gate
-        k_lo, k_hi = max(int(np.floor(lo - center)), 0), min(int(np.ceil(hi - center)), n)
+        k_lo, k_hi = max(math.floor(lo - center), 0), min(math.ceil(hi - center), n)
         seg = c[:, k_lo:k_hi]
         period = max(2, int(round(self.period)))
         mag = np.abs(seg)
@@ -165,8 +166,11 @@ class MatchedFilter:
         # waveform itself it is one sample holding nearly all the energy around the arrival,
         # where an echo of any centre frequency in band spreads it over its cycles
         h = int(np.ceil(1.5 * self.period)) + 2
-        pos = np.clip(np.round(index).astype(int)[:, None] + np.arange(-h, h + 1), 0, n - 1)
-        e = np.take_along_axis(x, pos, axis=1).astype(float) ** 2
+        # (np.minimum/np.maximum and plain indexing: np.clip and take_along_axis cost more
+        # than the arithmetic on one shot's 2h + 1 samples)
+        pos = np.minimum(np.maximum(np.round(index).astype(int)[:, None] + np.arange(-h, h + 1),
+                                    0), n - 1)
+        e = x[np.arange(n_shots)[:, None], pos].astype(float) ** 2
         peaky = e.max(axis=1) / np.maximum(e.sum(axis=1), 1e-30)
         spike = peaky > SPIKE_FRACTION
         ok = (snr_db >= floor) & ~spike
@@ -190,7 +194,8 @@ class MatchedFilter:
         rows = np.arange(len(vals))
         ym, y0, yp = vals[rows, j - 1], vals[rows, j], vals[rows, j + 1]
         denom = ym - 2 * y0 + yp
-        delta = np.where(denom < 0, 0.5 * (ym - yp) / np.where(denom < 0, denom, -1), 0.0)
+        curved = denom < 0
+        delta = np.where(curved, 0.5 * (ym - yp) / np.where(curved, denom, -1), 0.0)
         step = 1.0 / FINE
         return self.offsets[j] + delta * step, y0
 

@@ -155,9 +155,9 @@ static uint64_t wire_ticks(const struct dmdsm_core *c, size_t n)
  * laser period: skip the edge, a later one is ready as the wire frees. The waveform that
  * waits is then never more than one laser period old when it starts out, yet the wire
  * idles at no time (the edge skipped would have been followed by one ready in time). */
-static bool too_early(const struct dmdsm_core *c, uint64_t edge)
+static bool too_early(const struct dmdsm_core *c, uint64_t edge, uint32_t period)
 {
-    if (c->wave_count == 0 || c->laser_period == 0 || c->info->link_bytes_per_s == 0)
+    if (c->wave_count == 0 || period == 0 || c->info->link_bytes_per_s == 0)
         return false;
     /* when the waiting waveform will be out: it is on the wire, or next after a control frame */
     uint64_t free_at = c->tx_end;
@@ -165,8 +165,32 @@ static bool too_early(const struct dmdsm_core *c, uint64_t edge)
         free_at = (c->tx_end > edge ? c->tx_end : edge) + wire_ticks(c, c->wave_len[c->wave_head]);
     uint64_t burst = (uint64_t)(c->cfg.n_samples - c->cfg.pretrigger) * c->cfg.sample_rate_div *
                      c->info->tick_hz / c->info->adc_rate_hz;
-    uint64_t ready_by = edge + (uint64_t)c->cfg.n_average * c->laser_period + burst;
+    uint64_t ready_by = edge + (uint64_t)c->cfg.n_average * period + burst;
     return ready_by < free_at;
+}
+
+/* the laser period (ticks) the core measures once an edge at `edge` is in */
+static uint32_t period_after(const struct dmdsm_core *c, uint64_t edge)
+{
+    if (c->last_edge && edge > c->last_edge && edge - c->last_edge < c->info->tick_hz)
+        return (uint32_t)(edge - c->last_edge);
+    return c->laser_period;
+}
+
+/* a good burst at this edge would be skipped: no average is open and every slot waits for
+ * the link, or the one waiting leaves too late (too_early) */
+static bool skips(const struct dmdsm_core *c, uint64_t edge, uint32_t period)
+{
+    return c->n_in_avg == 0 &&
+           (c->wave_count == DMDSM_CORE_WAVE_SLOTS || too_early(c, edge, period));
+}
+
+bool dmdsm_core_takes_shot(struct dmdsm_core *c, uint32_t edge_ticks)
+{
+    if (c->state != DMDSM_STATE_ARMED && c->state != DMDSM_STATE_CAPTURING)
+        return false;
+    uint64_t edge = dmdsm_core_extend(dmdsm_core_now(c), edge_ticks);
+    return !skips(c, edge, period_after(c, edge));
 }
 
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
@@ -177,8 +201,7 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
     c->count.triggers++;
     uint64_t edge = dmdsm_core_extend(dmdsm_core_now(c), edge_ticks);
     c->armed_at = edge;
-    if (c->last_edge && edge > c->last_edge && edge - c->last_edge < c->info->tick_hz)
-        c->laser_period = (uint32_t)(edge - c->last_edge);
+    c->laser_period = period_after(c, edge);
     c->last_edge = edge;
     if (result == DMDSM_CAPTURE_OVERRUN) {
         c->count.adc_overruns++;
@@ -186,8 +209,7 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
     } else if (result != DMDSM_CAPTURE_OK) { /* never averaged: its samples may be stale */
         c->count.integrity_faults++;
         c->last_error = DMDSM_ERROR_SAMPLE_INTEGRITY;
-    } else if (c->n_in_avg == 0 &&
-               (c->wave_count == DMDSM_CORE_WAVE_SLOTS || too_early(c, edge))) {
+    } else if (skips(c, edge, c->laser_period)) {
         /* every slot still waits for the link (or the one waiting will be out only later
          * than a later shot could be ready): skip this shot rather than start an average
          * that could not be sent. Only this core fills the slots, so an average begun with

@@ -99,6 +99,10 @@ enum dmdsm_capture {
     DMDSM_CAPTURE_OVERRUN = 1,   /* the ADC or DMA overran, or the ring lapped the burst */
     DMDSM_CAPTURE_INTEGRITY = 2, /* the DMA's write position disagreed with the timer */
 };
+/* whether a good burst at this edge (32-bit ticks, now or just past) would be averaged
+ * rather than skipped for want of a free slot: an emulator asks it before it computes the
+ * samples of a shot the core would throw away */
+bool dmdsm_core_takes_shot(struct dmdsm_core *c, uint32_t edge_ticks);
 /* a burst finished: samples, 32-bit ticks of the edge, edge-to-first-sample
  * phase in ticks, and how it ended (enum dmdsm_capture) */
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,

@@ -49,6 +49,8 @@ def _load() -> ctypes.CDLL:
     lib.dmdsm_pc_tx.restype = ctypes.c_size_t
     lib.dmdsm_pc_armed.argtypes = [p, ctypes.POINTER(SetConfig)]
     lib.dmdsm_pc_capture.argtypes = [p, p, u32, u16, ctypes.c_int]
+    lib.dmdsm_pc_takes_shot.argtypes = [p, u32]
+    lib.dmdsm_pc_takes_shot.restype = ctypes.c_int
     lib.dmdsm_pc_sync_edges.argtypes = [p, p, ctypes.c_size_t]
     lib.dmdsm_pc_poll.argtypes = [p]
     lib.dmdsm_pc_set_link_rate.argtypes = [p, u32]
@@ -106,6 +108,11 @@ class FirmwareCore:
         if not self._l.dmdsm_pc_armed(self._dev, ctypes.byref(cfg)):
             return None
         return {name: getattr(cfg, name) for name, _ in SetConfig._fields_}
+
+    def takes_shot(self, edge_ticks: int) -> bool:
+        """Whether a good burst at edge_ticks (the ticks now) would be averaged: False when
+        the core is not armed or would skip the shot for want of a free waveform slot."""
+        return bool(self._l.dmdsm_pc_takes_shot(self._dev, edge_ticks & 0xFFFFFFFF))
 
     def capture(self, samples: np.ndarray, edge_ticks: int, phase_ticks: int = 0,
                 overrun: bool = False, integrity_fault: bool = False) -> None:

@@ -110,6 +110,11 @@ int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg)
     return d->armed;
 }
 
+int dmdsm_pc_takes_shot(struct dmdsm_pc *d, uint32_t edge_ticks)
+{
+    return d->armed && dmdsm_core_takes_shot(&d->core, edge_ticks);
+}
+
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
                       uint16_t phase, int result)
 {

@@ -21,6 +21,8 @@ void dmdsm_pc_rx(struct dmdsm_pc *d, const uint8_t *p, size_t n);
 size_t dmdsm_pc_tx(struct dmdsm_pc *d, uint8_t *out, size_t cap);
 /* 1 if waiting for a laser edge (and the configuration of that burst) */
 int dmdsm_pc_armed(const struct dmdsm_pc *d, struct dmdsm_set_config *cfg);
+/* 1 if armed and a good burst at edge_ticks would be averaged, not skipped (no free slot) */
+int dmdsm_pc_takes_shot(struct dmdsm_pc *d, uint32_t edge_ticks);
 /* one burst after an edge at edge_ticks: cfg.n_samples samples; result 0 = good,
  * 1 = ADC overrun, 2 = sample-integrity fault (enum dmdsm_capture); only good ones are averaged */
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,

@@ -192,3 +192,30 @@ def test_an_interference_spike_is_not_an_echo():
         echo = 300 * np.exp(-0.5 * (t / sg) ** 2) * np.cos(2 * np.pi * fc * t)
         r = mf(echo + rng.normal(0, 5, echo.shape))
         assert not any(s.startswith("spike") for s in r.reason), fc
+
+
+@settings(max_examples=40, deadline=None)
+@given(kind=st.sampled_from(["us", "oa"]), seed=st.integers(0, 2**31),
+       gate=st.tuples(st.integers(0, 500), st.integers(40, 1024)),
+       n_echoes=st.integers(0, 3), spikes=st.integers(0, 2))
+def test_one_waveform_at_a_time_reads_as_in_a_batch(kind, seed, gate, n_echoes, spikes):
+    """A scan or the live stream ranges one waveform at a time (MatchedFilter._arrival, on
+    scalars); a batch ranges many at once. Both read every waveform alike: whether there is
+    an arrival and why not, and the arrival, SNR and std to float32 rounding (a batch's
+    matrix products sum in another order: ~1e-7 samples)."""
+    mf, tmpl = FILTERS[kind], US if kind == "us" else OA
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, rng.uniform(2, 40), (12, N))
+    for row in x:
+        for _ in range(n_echoes):  # anywhere, the edges included, weak to strong
+            row += pulse_at(tmpl, rng.uniform(-20, N + 20), rng.uniform(20, 3000))
+        row[rng.integers(0, N, spikes)] += rng.choice([-900.0, 900.0], spikes)
+    lo, hi = gate[0], max(gate[0] + 40, gate[1])
+    batch = mf(x, gate=(lo, hi))
+    for i in range(len(x)):
+        one = mf(x[i:i + 1], gate=(lo, hi))
+        np.testing.assert_allclose(one.index, batch.index[i:i + 1], rtol=0, atol=1e-5)
+        assert one.reason[0].split(":")[0] == batch.reason[i].split(":")[0]
+        for f in ("amplitude", "snr_db", "index_std"):
+            np.testing.assert_allclose(getattr(one, f), getattr(batch, f)[i:i + 1],
+                                       rtol=1e-5, err_msg=f)

@@ -103,6 +103,9 @@ class MatchedFilter:
         self.beta = rms_bandwidth(template)
         self.rho1 = next_cycle_correlation(template)
         self.ambiguity_snr_db = ambiguity_snr_db(self.rho1)
+        # the samples around an arrival that the spike check weighs: 1.5 periods and 2 each side
+        h = int(np.ceil(1.5 * self.period)) + 2
+        self.spike_offsets = np.arange(-h, h + 1)
 
     def __call__(self, x: np.ndarray, gate: tuple[int, int] | None = None,
                  noise: slice | None = None, min_snr_db: float = 15.0,
@@ -134,6 +137,8 @@ class MatchedFilter:
                  gate: tuple[int, int] | None = None, min_snr_db: float = 15.0) -> Arrivals:
         """The first arrival within `gate` (samples) of each shot, from correlate()'s output."""
         n_shots, n = x.shape
+        if n_shots == 1:  # the live and scan paths: one waveform at a time
+            return self._arrival(x[0], c[0], sigma_c, gate, min_snr_db)
         lo, hi = gate or (0, n)
         center = self.t.center
         # lags whose arrival (k + center) lies in the gate
@@ -165,10 +170,7 @@ class MatchedFilter:
         # an interference spike (one sample) correlates into a perfect template shape; in the
         # waveform itself it is one sample holding nearly all the energy around the arrival,
         # where an echo of any centre frequency in band spreads it over its cycles
-        h = int(np.ceil(1.5 * self.period)) + 2
-        # (np.minimum/np.maximum and plain indexing: np.clip and take_along_axis cost more
-        # than the arithmetic on one shot's 2h + 1 samples)
-        pos = np.minimum(np.maximum(np.round(index).astype(int)[:, None] + np.arange(-h, h + 1),
+        pos = np.minimum(np.maximum(np.round(index).astype(int)[:, None] + self.spike_offsets,
                                     0), n - 1)
         e = x[np.arange(n_shots)[:, None], pos].astype(float) ** 2
         peaky = e.max(axis=1) / np.maximum(e.sum(axis=1), 1e-30)
@@ -176,15 +178,51 @@ class MatchedFilter:
         ok = (snr_db >= floor) & ~spike
         reason = np.full(n_shots, "", dtype=object)
         for i in np.nonzero(~ok)[0]:
-            reason[i] = (f"no echo: SNR {snr_db[i]:.1f} dB < {min_snr_db:g} dB"
-                         if snr_db[i] < min_snr_db else
-                         f"ambiguous: SNR {snr_db[i]:.1f} dB < {floor:.1f} dB, where the "
-                         f"next carrier cycle can win (cycle slip)" if snr_db[i] < floor else
-                         f"spike: one sample holds {peaky[i]:.0%} of the reading's energy "
-                         f"(interference, not an echo)")
+            reason[i] = _why_not(snr_db[i], min_snr_db, floor, peaky[i])
         snr = 10 ** (snr_db.astype(float) / 20)
         return Arrivals(np.where(ok, index.astype(float), np.nan),
                         amp.astype(float) / self.energy, snr_db.astype(float), reason,
+                        np.where(ok, 1.0 / (np.maximum(snr, 1e-30) * self.beta), np.nan))
+
+    def _arrival(self, x: np.ndarray, c: np.ndarray, sigma_c: np.ndarray,
+                 gate: tuple[int, int] | None, min_snr_db: float) -> Arrivals:
+        """arrivals() of one shot (x, c: 1-D; sigma_c: shape (1,)), step for step, on
+        numpy scalars and slices: a batch of one spends most of its time making small
+        arrays. Same dtypes (float32 correlation, float64 positions) and, where rounding
+        could differ, the same array operations, so both paths give the same bits
+        (tests/test_ranging.py checks it)."""
+        n = x.shape[0]
+        lo, hi = gate or (0, n)
+        center = self.t.center
+        k_lo, k_hi = max(math.floor(lo - center), 0), min(math.ceil(hi - center), n)
+        seg = c[k_lo:k_hi]
+        period = max(2, int(round(self.period)))
+        mag = np.abs(seg)
+        peak = mag.max(keepdims=True)
+        thr = np.minimum(np.maximum(0.5 * peak, 6.0 * sigma_c), peak)[0]
+        first = int((mag >= thr).argmax()) // period * period
+        span = max(period, len(self.t.pulse)) + period
+        k0 = k_lo + first + int(seg[first:first + span].argmax())
+        around = c[(k0 + self.coarse_lags) % n][None]  # (1, lags): the batch's product
+        k1 = k0 + int(np.round(self.coarse_offsets[int((around @ self.coarse).argmax())]))
+        vals = c[(k1 + self.fine_lags) % n][None] @ self.fine
+        j = min(max(int(vals.argmax()), 1), FINE - 1)
+        ym, y0, yp = vals[0, j - 1], vals[0, j], vals[0, j + 1]
+        denom = ym - np.float32(2) * y0 + yp
+        delta = np.float32(0.5) * (ym - yp) / denom if denom < 0 else np.float32(0)
+        index = k1 + (self.offsets[j] + delta * np.float32(1.0 / FINE)) + center
+        amp = vals[0, j:j + 1]
+        snr_db = 20 * np.log10(np.maximum(np.abs(amp), 1e-30) / np.maximum(sigma_c, 1e-30))
+        floor = max(min_snr_db, self.ambiguity_snr_db)
+        pos = np.minimum(np.maximum(int(np.round(index)) + self.spike_offsets, 0), n - 1)
+        e = x[pos].astype(float) ** 2
+        peaky = e.max() / max(e.sum(), 1e-30)
+        ok = bool(snr_db[0] >= floor) and not peaky > SPIKE_FRACTION
+        snr = 10 ** (snr_db.astype(float) / 20)
+        return Arrivals(np.array([float(index) if ok else np.nan]),
+                        amp.astype(float) / self.energy, snr_db.astype(float),
+                        np.array(["" if ok else _why_not(snr_db[0], min_snr_db, floor, peaky)],
+                                 dtype=object),
                         np.where(ok, 1.0 / (np.maximum(snr, 1e-30) * self.beta), np.nan))
 
     def _refine(self, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -223,6 +261,17 @@ def _noise_sigma(x: np.ndarray, noise: slice | None) -> np.ndarray:
     seg = x[:, noise] if noise is not None else x[:, -max(16, x.shape[1] // 8):]
     dev = seg - np.add.reduce(seg, axis=1, keepdims=True) / seg.shape[1]
     return np.sqrt(np.einsum("ij,ij->i", dev, dev) / dev.shape[1])
+
+
+def _why_not(snr_db: float, min_snr_db: float, floor_db: float, peaky: float) -> str:
+    """Why a reading gives no arrival: too weak, ambiguous (cycle slip) or a spike."""
+    if snr_db < min_snr_db:
+        return f"no echo: SNR {snr_db:.1f} dB < {min_snr_db:g} dB"
+    if snr_db < floor_db:
+        return (f"ambiguous: SNR {snr_db:.1f} dB < {floor_db:.1f} dB, where the next carrier "
+                f"cycle can win (cycle slip)")
+    return (f"spike: one sample holds {peaky:.0%} of the reading's energy (interference, not "
+            f"an echo)")
 
 
 def crlb_samples(template: Template, sigma: float, gain: float = 1.0) -> float:

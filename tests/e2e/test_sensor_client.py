@@ -86,6 +86,39 @@ def test_clock_sync_recovers_the_tick_rate(emulator):
     sc.close()
 
 
+def test_a_clock_exchange_whose_write_was_held_is_made_again(emulator, monkeypatch):
+    """Under a live stream's load the thread that stamps a clock_sync's send can be held off
+    the interpreter for ms before the bytes go out; the board then reads its clock that
+    much later than the stamp says. Such an exchange is made again, not fitted."""
+    import time
+
+    from dmdsm.host.links import sensor as sensor_module
+
+    sc = SensorClient(emulator(speed=1.0).sensor)
+    write, calls = sc._write, []  # calls: (host monotonic s of the write, held)
+
+    def held_every_other(data: bytes) -> None:
+        held = len(calls) % 2 == 0
+        if held:  # this thread held off 5 ms between its send stamp and the write
+            time.sleep(0.005)
+        calls.append((time.monotonic(), held))
+        write(data)
+
+    monkeypatch.setattr(sc, "_write", held_every_other)
+    ex = sc.clock_exchanges(6)
+    assert len(ex) == 6 and len(calls) == 12  # each held one made again
+    clean = np.array([t for t, held in calls if not held])
+    for mid, _, rtt in ex:  # each kept exchange was written just after its send stamp
+        assert np.min(np.abs(clean - (mid - rtt / 2))) < 1e-3
+    calls.clear()
+    monkeypatch.setattr(sc, "_write", lambda data: (time.sleep(0.005),
+                                                    calls.append((0.0, True)), write(data)))
+    ex = sc.clock_exchanges(2)  # every write held: as many again, then the last one kept
+    assert len(calls) == 4 and len(ex) == 1
+    assert sensor_module.HELD_WRITE_S < 0.005
+    sc.close()
+
+
 def test_leaving_the_client_by_an_error_disarms_the_board(emulator):
     """Issue 30: SensorClient is a context manager, as StageClient is; an error inside it
     leaves the board idle, not streaming."""

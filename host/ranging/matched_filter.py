@@ -103,6 +103,10 @@ class MatchedFilter:
         self.beta = rms_bandwidth(template)
         self.rho1 = next_cycle_correlation(template)
         self.ambiguity_snr_db = ambiguity_snr_db(self.rho1)
+        # the first echo's search: whole carrier periods (samples), and the window after it
+        # that holds its main lobe (one pulse length and a period)
+        self.period_samples = max(2, int(round(self.period)))
+        self.span = max(self.period_samples, len(template.pulse)) + self.period_samples
         # the samples around an arrival that the spike check weighs: 1.5 periods and 2 each side
         h = int(np.ceil(1.5 * self.period)) + 2
         self.spike_offsets = np.arange(-h, h + 1)
@@ -144,7 +148,7 @@ class MatchedFilter:
         # lags whose arrival (k + center) lies in the gate
         k_lo, k_hi = max(math.floor(lo - center), 0), min(math.ceil(hi - center), n)
         seg = c[:, k_lo:k_hi]
-        period = max(2, int(round(self.period)))
+        period, span = self.period_samples, self.span
         mag = np.abs(seg)
         peak = mag.max(axis=1)
         # the first echo: the first carrier period whose envelope (|correlation|) exceeds
@@ -152,7 +156,6 @@ class MatchedFilter:
         # pulse length after it
         thr = np.minimum(np.maximum(0.5 * peak, 6.0 * sigma_c), peak)  # above the noise
         first = (mag >= thr[:, None]).argmax(axis=1) // period * period
-        span = max(period, len(self.t.pulse)) + period
         flat = c.reshape(-1)
         base = np.arange(n_shots) * n
         win = np.minimum(first[:, None] + np.arange(span), seg.shape[1] - 1) + k_lo
@@ -189,19 +192,19 @@ class MatchedFilter:
         """arrivals() of one shot (x, c: 1-D; sigma_c: shape (1,)), step for step, on
         numpy scalars and slices: a batch of one spends most of its time making small
         arrays. Same dtypes (float32 correlation, float64 positions) and, where rounding
-        could differ, the same array operations, so both paths give the same bits
-        (tests/test_ranging.py checks it)."""
+        could differ, the same array operations: a batch of one gives the same bits as
+        before this path; a larger batch sums its matrix products in another order, ~1e-7
+        samples (tests/test_ranging.py holds the two together)."""
         n = x.shape[0]
         lo, hi = gate or (0, n)
         center = self.t.center
         k_lo, k_hi = max(math.floor(lo - center), 0), min(math.ceil(hi - center), n)
         seg = c[k_lo:k_hi]
-        period = max(2, int(round(self.period)))
+        period, span = self.period_samples, self.span
         mag = np.abs(seg)
         peak = mag.max(keepdims=True)
         thr = np.minimum(np.maximum(0.5 * peak, 6.0 * sigma_c), peak)[0]
         first = int((mag >= thr).argmax()) // period * period
-        span = max(period, len(self.t.pulse)) + period
         k0 = k_lo + first + int(seg[first:first + span].argmax())
         around = c[(k0 + self.coarse_lags) % n][None]  # (1, lags): the batch's product
         k1 = k0 + int(np.round(self.coarse_offsets[int((around @ self.coarse).argmax())]))

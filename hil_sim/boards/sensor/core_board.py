@@ -115,12 +115,13 @@ class SensorBoard:
         return [known[k] for k in keys]
 
     def _fire(self, t: float, cfg: dict, hit: Hit) -> None:
-        self.core.set_ticks(self._ticks(t))
-        if not self.core.takes_shot(self._ticks(t)):
+        ticks = self._ticks(t)
+        self.core.set_ticks(ticks)
+        if not self.core.takes_shot(ticks):
             # the core skips it (every waveform slot waits for the link): the edge is
             # counted, its samples are never looked at, so none are computed. At the link's
             # limit that is 9 shots in 10, most of the emulator's time.
-            self.core.capture(self._skipped, self._ticks(t), 0)
+            self.core.capture(self._skipped, ticks, 0)
             self.shots += 1
             return
         fs = ADC_RATE_HZ / cfg["sample_rate_div"]
@@ -129,7 +130,7 @@ class SensorBoard:
         k = np.arange(cfg["n_samples"]) - cfg["pretrigger"]
         t_us = (k / fs + phase / TICK_HZ) * 1e6
         x = synthesize(hit, self.model, t_us, self.rng, self.seed)
-        self.core.capture(to_adc(x, self.model), self._ticks(t), phase)
+        self.core.capture(to_adc(x, self.model), ticks, phase)
         self.shots += 1
 
     def _reseed(self, t: float, cfg: dict) -> None:

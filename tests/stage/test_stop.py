@@ -157,14 +157,17 @@ MOVER = """
 import sys, time
 from dmdsm.host.links.stage import StageClient
 st = StageClient(sys.argv[1])
-st.move(x=250, feed_mm_min=300)
-st.move(y=200, feed_mm_min=600)
+st.move(x=250, feed_mm_min=150)
+st.move(y=200, feed_mm_min=150)
 print("moving", flush=True)
 time.sleep(600)
 """
 
 
 def test_stop_after_the_owner_was_killed(emu):
+    # the two moves take ~180 s of stage time (45 s of wall time at 4x): the `where` and `stop`
+    # processes must find them running even when each Python start takes many seconds on a
+    # loaded machine (at 300 and 600 mm/min the Y move had ended before the stop in one CI run)
     p = subprocess.Popen([sys.executable, "-c", MOVER, emu.stage], stdout=subprocess.PIPE,
                          text=True)
     try:

@@ -2,6 +2,8 @@
 and the live stream's sigma hold by Monte Carlo, and a stalled exchange is left out."""
 
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -9,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dmdsm.host.links.sensor import fit_clock, fit_line
+from dmdsm.host.robotics import live as live_mod
 from dmdsm.host.robotics.live import clock_fit, monotonic_stamp, robust_keep, split_var_s2
 
 HZ = 240e6
@@ -162,3 +165,50 @@ def test_a_drifting_clock_does_not_hold_the_stamps_on_the_floor():
     assert host == pytest.approx(1.013) and std == pytest.approx(math.hypot(1e-5, 3e-3))
     host, std, last = monotonic_stamp(1.020, 1e-5, 102 * period_ticks, last, HZ)
     assert (host, std) == (1.020, 1e-5)  # back on the fit, with its own sigma
+
+
+class FakeClockSensor:
+    """clock_exchanges of a board whose ticks run on a known line (HZ, 4e6 at host 0)."""
+
+    def __init__(self) -> None:
+        self.t = 50.0
+        self.made = threading.Event()
+
+    def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0) -> list:
+        out = []
+        for _ in range(n):
+            self.t += 0.01
+            out.append((self.t, 4e6 + HZ * self.t, 3e-4))
+        if n == 1:
+            self.made.set()
+        return out
+
+
+def test_the_clock_tracker_refits_on_its_thread_not_on_the_records_path(monkeypatch):
+    """A record reads the tracker's latest fit without fitting (a fit takes ~1 ms idle and
+    2-3 ms under a live stream: on the record's path it delayed one record in ten), and that
+    fit includes the exchanges made while the stream runs."""
+    sensor = FakeClockSensor()
+    tracker = live_mod.ClockTracker(sensor, resync_s=0.01)
+    fits_here = []
+    real = live_mod.clock_fit
+
+    def counted(*a, **k):
+        if threading.current_thread() is threading.main_thread():
+            fits_here.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(live_mod, "clock_fit", counted)
+    tracker.start()
+    try:
+        deadline = time.monotonic() + 30
+        while len(tracker.exchanges) < live_mod.MIN_FIT_EXCHANGES + 2:
+            assert time.monotonic() < deadline, "the tracker made no exchanges"
+            sensor.made.wait(0.05)
+        fit = tracker.current()
+    finally:
+        tracker.stop()
+    assert not fits_here
+    assert not fit.before_arm and fit.sync.n >= live_mod.MIN_FIT_EXCHANGES
+    host, _ = fit.stamp(4e6 + HZ * 60.0)
+    assert abs(host - 60.0) < 1e-6

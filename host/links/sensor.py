@@ -547,10 +547,16 @@ def fit_line(host_s: np.ndarray, ticks: np.ndarray, rtt_s: float) -> ClockSync:
     mean host time and spread. rtt_s: the round trip reported with it (s)."""
     x, y = np.asarray(host_s, dtype=float), np.asarray(ticks, dtype=float)
     xk = x - x[0]  # host seconds since the first: the fit stays well conditioned
-    rate, offset = np.polyfit(xk, y, 1)
+    xm, ym = float(xk.mean()), float(y.mean())
+    dx = xk - xm
+    sxx = float(dx @ dx)
+    if sxx > 0:  # the normal equations on centred data (polyfit's SVD: 4x the time)
+        rate = float(dx @ (y - ym)) / sxx
+        offset = ym - rate * xm
+    else:
+        rate, offset = np.polyfit(xk, y, 1)
     resid = y - (offset + rate * xk)
     res_s = float(np.sqrt(np.mean(resid ** 2)) / rate)
-    sxx = float(np.sum((xk - xk.mean()) ** 2))
     rate_std = res_s * rate / math.sqrt(sxx) if sxx > 0 and len(xk) > 2 else float("inf")
     return ClockSync(offset - rate * x[0], rate, res_s, float(rtt_s), rate_std=rate_std,
                      n=len(x), x_mean_s=float(x.mean()), sxx_s2=sxx)

@@ -138,15 +138,17 @@ def robust_keep(x: np.ndarray, y: np.ndarray, base: np.ndarray, clip: float = CL
     return keep
 
 
-def clock_fit(before: list[tuple[float, float, float]], during: list[tuple[float, float, float]],
-              idle_rtt_s: float) -> ClockFit:
+def clock_fit(before: list[tuple[float, float, float]] | np.ndarray,
+              during: list[tuple[float, float, float]] | np.ndarray, idle_rtt_s: float
+              ) -> ClockFit:
     """Fit (host mid s, ticks, round trip s) exchanges by the request's send time: the
     board stamps a clock_sync when the request arrives, but its reply waits behind the
     waveform frame on the wire (up to 10.4 ms at the link limit), so the send time plus
     half the idle round trip (`before`: made before the arm) is the arrival whatever the
     reply's wait. `during`: made while the stream runs; once MIN_FIT_EXCHANGES of them are
     there the line goes through those alone (the board's regime), else through all."""
-    ex = np.array(list(before) + list(during), dtype=float).reshape(-1, 3)
+    ex = np.concatenate([np.asarray(before, dtype=float).reshape(-1, 3),
+                         np.asarray(during, dtype=float).reshape(-1, 3)])
     mid, ticks, rtt = ex.T
     x = mid - rtt / 2 + idle_rtt_s / 2
     base = np.arange(len(ex)) >= len(before)
@@ -172,7 +174,7 @@ class ClockTracker:
     def __init__(self, sensor: SensorClient, resync_s: float = RESYNC_S) -> None:
         self.sensor, self.resync_s = sensor, resync_s
         self.before = sensor.clock_exchanges(16, CLOCK_SPACING_S)
-        self.exchanges: list[tuple[float, float, float]] = []  # while the stream runs
+        self.exchanges = np.empty((0, 3))  # (host mid s, ticks, rtt s) while it runs
         # the idle round trip without the host's own scheduling delays (a wake-up after
         # the reply is in, not a leg of the trip): the quicker quartile's bound
         self.idle_rtt_s = float(np.percentile([e[2] for e in self.before], IDLE_RTT_PCT))
@@ -193,7 +195,8 @@ class ClockTracker:
                 ex = self.sensor.clock_exchanges(1)
             except LinkError:  # the stream's reader reports the lost link
                 return
-            self.exchanges = (self.exchanges + ex)[-KEEP_EXCHANGES:]
+            self.exchanges = np.concatenate([self.exchanges, np.asarray(ex, dtype=float)
+                                             .reshape(-1, 3)])[-KEEP_EXCHANGES:]
             self.fit = clock_fit(self.before, self.exchanges, self.idle_rtt_s)  # one store
 
     def current(self) -> ClockFit:

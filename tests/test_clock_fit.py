@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from client_fakes import FakeSensor
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -167,28 +168,11 @@ def test_a_drifting_clock_does_not_hold_the_stamps_on_the_floor():
     assert (host, std) == (1.020, 1e-5)  # back on the fit, with its own sigma
 
 
-class FakeClockSensor:
-    """clock_exchanges of a board whose ticks run on a known line (HZ, 4e6 at host 0)."""
-
-    def __init__(self) -> None:
-        self.t = 50.0
-        self.made = threading.Event()
-
-    def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0) -> list:
-        out = []
-        for _ in range(n):
-            self.t += 0.01
-            out.append((self.t, 4e6 + HZ * self.t, 3e-4))
-        if n == 1:
-            self.made.set()
-        return out
-
-
 def test_the_clock_tracker_refits_on_its_thread_not_on_the_records_path(monkeypatch):
     """A record reads the tracker's latest fit without fitting (a fit takes ~1 ms idle and
     2-3 ms under a live stream: on the record's path it delayed one record in ten), and that
     fit includes the exchanges made while the stream runs."""
-    sensor = FakeClockSensor()
+    sensor = FakeSensor(motion=None)  # exchanges on its known clock, answered at once
     tracker = live_mod.ClockTracker(sensor, resync_s=0.01)
     fits_here = []
     real = live_mod.clock_fit
@@ -204,11 +188,12 @@ def test_the_clock_tracker_refits_on_its_thread_not_on_the_records_path(monkeypa
         deadline = time.monotonic() + 30
         while len(tracker.exchanges) < live_mod.MIN_FIT_EXCHANGES + 2:
             assert time.monotonic() < deadline, "the tracker made no exchanges"
-            sensor.made.wait(0.05)
+            time.sleep(0.005)
         fit = tracker.current()
     finally:
         tracker.stop()
     assert not fits_here
     assert not fit.before_arm and fit.sync.n >= live_mod.MIN_FIT_EXCHANGES
-    host, _ = fit.stamp(4e6 + HZ * 60.0)
-    assert abs(host - 60.0) < 1e-6
+    t = time.monotonic() + 1.0
+    host, _ = fit.stamp(sensor.ticks(t))
+    assert abs(host - t) < 1e-6

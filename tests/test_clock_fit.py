@@ -11,7 +11,7 @@ from client_fakes import FakeSensor
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dmdsm.host.links.sensor import fit_clock, fit_line
+from dmdsm.host.links.sensor import SensorError, fit_clock, fit_line
 from dmdsm.host.robotics import live as live_mod
 from dmdsm.host.robotics.live import clock_fit, monotonic_stamp, robust_keep, split_var_s2
 
@@ -197,3 +197,31 @@ def test_the_clock_tracker_refits_on_its_thread_not_on_the_records_path(monkeypa
     t = time.monotonic() + 1.0
     host, _ = fit.stamp(sensor.ticks(t))
     assert abs(host - t) < 1e-6
+
+
+def test_the_clock_tracker_goes_on_after_an_exchange_without_reply_and_stops_on_a_lost_link():
+    """A clock_sync whose reply was lost on a link still streaming is made again at the next
+    resync (the thread ended there, and the stamps drifted on the last fit for the rest of
+    the stream); a lost link ends the thread, for the stream's reader to report."""
+
+    class Flaky(FakeSensor):
+        calls, link_error = 0, None
+
+        def clock_exchanges(self, n=16, spacing_s=0.0):
+            self.calls += 1
+            if self.calls in (2, 3):  # the thread's first two: no reply
+                raise SensorError("no reply to clock_sync from /dev/fake after 3 tries")
+            if self.calls == 10:  # the link goes
+                self.link_error = "read failed"
+                raise SensorError("lost the sensor board on /dev/fake (read failed)")
+            return super().clock_exchanges(n, spacing_s)
+
+    sensor = Flaky(motion=None)
+    tracker = live_mod.ClockTracker(sensor, resync_s=0.01)
+    tracker.start()
+    try:
+        tracker.thread.join(30)
+        assert not tracker.thread.is_alive(), "the tracker went on over a lost link"
+    finally:
+        tracker.stop()
+    assert tracker.missed == 2 and len(tracker.exchanges) == 6  # calls 4..9

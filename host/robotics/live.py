@@ -179,6 +179,7 @@ class ClockTracker:
         # the reply is in, not a leg of the trip): the quicker quartile's bound
         self.idle_rtt_s = float(np.percentile([e[2] for e in self.before], IDLE_RTT_PCT))
         self.fit = clock_fit(self.before, [], self.idle_rtt_s)
+        self.missed = 0  # exchanges that got no reply while the link was up
         self.stop_event = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True, name="dmdsm-live-clock")
 
@@ -193,7 +194,12 @@ class ClockTracker:
             made += 1
             try:
                 ex = self.sensor.clock_exchanges(1)
-            except LinkError:  # the stream's reader reports the lost link
+            except SensorError:
+                if getattr(self.sensor, "link_error", None):
+                    return  # the link is lost: the stream's reader reports it
+                self.missed += 1  # no reply on a live link (a reply lost): next resync
+                continue
+            except LinkError:
                 return
             self.exchanges = np.concatenate([self.exchanges, np.asarray(ex, dtype=float)
                                              .reshape(-1, 3)])[-KEEP_EXCHANGES:]

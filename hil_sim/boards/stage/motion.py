@@ -6,8 +6,8 @@ entry and exit speed; a block runs a trapezoid in step rates that starts and end
 than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
 BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; a short block queued while few
 wait is slowed (SLOWDOWN, min_segment_time_us), and a shallow corner after a sub-millimetre
-block is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the running block is never
-re-planned; the dominant axis steps at the profile's rate and the others follow by
+block is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the running block
+is never re-planned; the dominant axis steps at the profile's rate and the others follow by
 Bresenham; a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its
 steps left to the next move (the planner keeps its own position, apart from the steppers'),
 and a re-sync of the planner's position while steps are owed (homing another axis) sets the

@@ -111,9 +111,13 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     # first_look_lines: its lines come before the follow lines)
     assert a["first_look_lines"] == n_look + a["far_look_lines"]
     assert idx == list(range(a["first_look_lines"] + a["lines"] + a["hole_lines"]))
-    # the command built the object's 3D model from it: on the true block where it measured
-    # (the first look's levels are 10 mm apart here: between them the surface is closed
-    # across, not measured; bench/model.py gives the figures of a whole auto plan)
+    # the command built the object's 3D model from it, on the true block where it measured.
+    # At the follow lines' level the rows are many (the first look's and the follow lines'):
+    # there the model is as close as the points are. The first look's other levels are one
+    # row of 45-degree views each, fitted across with a plane, and 10 mm apart here (between
+    # them the surface is closed across, not measured): farther off, and the share of the
+    # vertices they hold depends on whether the outline asked for a far look (run to run:
+    # median 0.09-0.2 mm over all). bench/model.py gives the figures of a whole auto plan.
     from scipy.spatial import cKDTree
 
     from dmdsm.host.model.store import load_object_model
@@ -125,7 +129,11 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     assert len(V) > 100
     truth = emu.sim.truth_objects()[0]
     d = np.abs(truth.signed_distance(V))
+    P = scan_points(whole)["oa"]
+    z_follow = P["P"][P["index"] >= a["first_look_lines"], 2]
+    level = np.abs(V[:, 2] - np.median(z_follow)) < 1.5
+    assert level.sum() > 50 and np.median(d[level]) < 0.12, np.percentile(d[level], [50, 95])
     # (a box's edges are rounded over the fit's radius: bench/model.py, docs/scanning.md)
-    assert np.median(d) < 0.2, np.percentile(d, [50, 75, 95])
+    assert np.median(d) < 0.3, np.percentile(d, [50, 75, 95])
     np.testing.assert_array_equal(whole.points["stage_position_mm"][:cut.n_points],
                                   cut.points["stage_position_mm"])

@@ -89,6 +89,53 @@ def test_the_first_block_after_idle_waits_unless_three_are_queued():
     assert blocks[0].t0 == pytest.approx(2.02)  # delivered when the third arrived
 
 
+def test_a_shallow_corner_after_a_sub_millimetre_block_runs_at_the_arcs_speed():
+    """JD_HANDLE_SMALL_SEGMENTS (on in the Chiron configuration): a block under 1 mm that
+    turns by less than 45 degrees is taken as part of an arc, v^2 <= length x a / turn
+    (Marlin's turn estimate is within 0.033 rad); from 1 mm on, junction deviation alone."""
+    def corner(length_mm: float) -> tuple[float, float]:
+        """(the junction's speed limit mm/s, the turn rad between the blocks' steps)."""
+        p = Planner(M)
+        p.steps = p.to_steps([100, 100, 10, 0])
+        p.add(0.0, p.steps.copy(), p.to_steps([150, 100, 10, 0]), 150.0)
+        turn = np.radians(5.0)
+        end = np.array([150 + length_mm * np.cos(turn), 100 + length_mm * np.sin(turn), 10, 0])
+        b = p.add(0.0, p.to_steps([150, 100, 10, 0]), p.to_steps(end), 150.0)
+        return b.max_entry, float(np.arctan2(b.unit[1], b.unit[0]))  # whole steps' turn
+
+    (short, turn_s), (long, turn_l) = corner(0.5), corner(1.5)
+    ju = np.array([np.cos(turn_l) - 1, np.sin(turn_l)])  # the junction's direction
+    a = min(ACCEL, *(M.max_acceleration[i] / abs(ju[i] / np.linalg.norm(ju))
+                     for i in range(2)))
+    s = np.cos(turn_l / 2)  # sin of half the angle between the first reversed and the second
+    assert long == pytest.approx(np.sqrt(a * M.junction_deviation_mm * s / (1 - s)), rel=1e-6)
+    assert 0.49 * a / (turn_s + 0.034) <= short ** 2 <= 0.51 * a / (turn_s - 0.034)
+    assert short < 0.8 * long
+
+
+def test_short_blocks_queued_while_few_wait_are_slowed_as_marlins_slowdown_does():
+    """Marlin's SLOWDOWN (planner.cpp, min_segment_time_us 20000): with 2 to 7 blocks
+    waiting, a block shorter than 20 ms at its feed is stretched by twice the shortfall over
+    that count; the real Marlin under simavr took 20 ms over 0.54 mm joined at 100 mm/s where
+    the emulator took 12.6 (`make check-marlin`'s differential, short arcs)."""
+    p = Planner(M)
+    p.steps = p.to_steps([100, 100, 10, 0])
+    blocks = [p.add(0.0, p.to_steps([100 + i, 100, 10, 0]), p.to_steps([101 + i, 100, 10, 0]),
+                    100.0) for i in range(10)]  # 1 mm at 100 mm/s: 10 ms, 10 short
+    want = [100.0, 100.0] + [1e6 / (10000 + 20000 // k) for k in range(2, 8)] + [100.0, 100.0]
+    assert [b.v for b in blocks] == pytest.approx(want, rel=1e-9)
+    long = p.add(0.0, p.to_steps([110, 100, 10, 0]), p.to_steps([112.5, 100, 10, 0]), 100.0)
+    assert long.v == 100.0  # 25 ms: long enough
+    q = Planner(M)
+    q.steps = q.to_steps([100, 100, 10, 0])
+    first = [q.add(0.0, q.to_steps([100 + 5 * i, 100, 10, 0]),
+                   q.to_steps([105 + 5 * i, 100, 10, 0]), 100.0) for i in range(3)]
+    q.update(0.001)  # the first one runs: it is no longer waiting
+    assert first[0].t0 == 0.0
+    b = q.add(0.001, q.to_steps([115, 100, 10, 0]), q.to_steps([116, 100, 10, 0]), 100.0)
+    assert b.v == pytest.approx(1e6 / (10000 + 20000 // 2))
+
+
 def test_a_block_too_short_to_slow_down_in_decelerates_over_its_whole_length():
     """Found by the auto scan's joined moves: a short block entered faster than it could
     leave had a zero duration, so its STEP pulses all fell on one instant the sync wire

@@ -111,7 +111,7 @@ def test_script_runs_standalone_with_one_line_errors(checkout, tmp_path):
     script = ROOT / "firmware/marlin_patch/apply.py"
     r = subprocess.run([sys.executable, str(script), str(checkout)], capture_output=True,
                        text=True)
-    assert r.returncode == 0 and "changed 44 settings; all 57 verified" in r.stdout
+    assert r.returncode == 0 and "changed 44 settings; all 61 verified" in r.stdout
     r = subprocess.run([sys.executable, str(script), str(tmp_path / "nowhere")],
                        capture_output=True, text=True)
     assert r.returncode == 2

@@ -29,6 +29,8 @@ class MachineLimits:
     max_cmd_size: int
     keepalive_interval_s: float
     junction_deviation_mm: float = 0.013  # JUNCTION_DEVIATION_MM: corner speed limit (mm)
+    min_segment_time_us: int = 20000  # DEFAULT_MINSEGMENTTIME: SLOWDOWN's floor (us)
+    slowdown_divisor: int = 2  # SLOWDOWN_DIVISOR: slow down below buffer / divisor blocks
 
     def axis(self, name: str) -> int:
         """Index of an axis letter (X, Y, Z, A)."""

@@ -31,7 +31,11 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
     assert run.status == "complete"
     a = run.auto
-    assert a["first_look_lines"] == 4 * 8 and {0.0, 90.0} <= set(a["angles_deg"])
+    # four levels of eight angles; a far look (another 8 lines a level) where a row of the
+    # outline was left open: a sector of 45-degree views with too few echoes, which happens
+    # in about 1 run of 3 with either planner model (emulated SLOWDOWN or not)
+    assert a["first_look_lines"] == 4 * 8 + a["far_look_lines"] and a["far_look_lines"] % 8 == 0
+    assert {0.0, 90.0} <= set(a["angles_deg"])
     assert a["outline_seen_share"] == 1.0  # a box's four faces, each seen head on
     assert a["lines"] == 2 * len(a["angles_deg"]) and min(a["coverage"].values()) > 0.9
     assert 0 <= a["holes_after_follow"] < 0.2 and a["hole_lines"] >= 0

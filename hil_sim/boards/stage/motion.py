@@ -4,8 +4,10 @@ What a host can observe of a real Marlin's motion is modelled as Marlin 2.1 does
 (planner.cpp, stepper.cpp): junction deviation and the look-ahead passes set each block's
 entry and exit speed; a block runs a trapezoid in step rates that starts and ends at no less
 than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
-BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; the running block is never
-re-planned; the dominant axis steps at the profile's rate and the others follow by
+BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; a short block queued while few
+wait is slowed (SLOWDOWN, min_segment_time_us), and a shallow corner after a sub-millimetre
+block is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the running block
+is never re-planned; the dominant axis steps at the profile's rate and the others follow by
 Bresenham; a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its
 steps left to the next move (the planner keeps its own position, apart from the steppers'),
 and a re-sync of the planner's position while steps are owed (homing another axis) sets the
@@ -30,6 +32,15 @@ MIN_STEPS_PER_SEGMENT = 6       # Configuration_adv.h: a block whose largest axi
 # below this is not queued, and the planner's position stays where it was (planner.cpp)
 HISTORY = 512                   # finished blocks kept for position_at() and step_edges():
 # a fly line of joined short moves runs dozens of blocks between two queries of the sync wire
+
+
+def _acos_minus(cos_theta: float) -> float:
+    """The junction's turn (rad) as Marlin's JD_HANDLE_SMALL_SEGMENTS estimates it: acos of
+    -cos_theta by its min-max polynomial (error up to 0.033 rad, its floor 0.033 rad)."""
+    t = abs(cos_theta)
+    asin_t = 0.032843707 + t * (-1.451838349 + t * (29.66153956 + t * (
+        -131.1123477 + t * (262.8130562 + t * (-242.7199627 + t * 84.31466202)))))
+    return math.pi / 2 + (-1.0 if cos_theta < 0 else 1.0) * asin_t
 
 
 @dataclass
@@ -224,7 +235,7 @@ class Planner:
         delta = (target_steps - start_steps) / self.spu
         linear = float(np.linalg.norm(delta[:3]))
         length = linear if linear > 0 else float(abs(delta[3:]).sum())
-        v = feed_mm_s
+        v = self._slowdown(length, feed_mm_s) if length > 0 else feed_mm_s
         a = accel if accel is not None else self.limits.default_acceleration
         unit = delta / length if length > 0 else np.zeros_like(delta)
         if length > 0:
@@ -247,6 +258,20 @@ class Planner:
         self._replan()
         return move
 
+    def _slowdown(self, length: float, feed_mm_s: float) -> float:
+        """Marlin's SLOWDOWN: while 2 to block_buffer_size / slowdown_divisor - 1 blocks wait
+        to run (the one running not counted), a block shorter in time at feed_mm_s than
+        min_segment_time_us is stretched by twice the shortfall over that count (us, in
+        Marlin's integer arithmetic), so the queue drains more slowly; the feed (mm/s)."""
+        waiting = sum(1 for m in self.queue if m.t0 is None)
+        if not 2 <= waiting <= self.limits.block_buffer_size // self.limits.slowdown_divisor - 1:
+            return feed_mm_s
+        segment_us = round(1e6 * length / feed_mm_s)
+        short_us = int(self.limits.min_segment_time_us) - segment_us
+        if short_us <= 0:
+            return feed_mm_s
+        return length * 1e6 / (segment_us + 2 * short_us // waiting)
+
     def _junction(self, prev: Move, move: Move) -> float:
         """Largest speed (mm/s) through the corner between two blocks (junction deviation)."""
         cos_theta = -float(np.dot(prev.unit, move.unit))
@@ -262,6 +287,8 @@ class Planner:
                 a = min(a, float(np.min(np.where(ju > 0, self.amax / ju, np.inf))))
         sin_d2 = math.sqrt(0.5 * (1.0 - cos_theta))
         v2 = a * self.jd * sin_d2 / (1.0 - sin_d2)
+        if move.length < 1 and cos_theta < -0.7071067812:  # JD_HANDLE_SMALL_SEGMENTS:
+            v2 = min(v2, move.length * a / _acos_minus(cos_theta))  # the arc's curvature
         return math.sqrt(min(v2, move.v ** 2, prev.v ** 2))
 
     def _replan(self) -> None:

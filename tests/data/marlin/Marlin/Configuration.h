@@ -30,6 +30,7 @@
 //#define CLASSIC_JERK
 #if DISABLED(CLASSIC_JERK)
   #define JUNCTION_DEVIATION_MM 0.013 // (mm) Distance from real junction edge
+  #define JD_HANDLE_SMALL_SEGMENTS    // Use curvature estimation instead of just the junction angle
 #endif
 //#define S_CURVE_ACCELERATION
 #define FIX_MOUNTED_PROBE

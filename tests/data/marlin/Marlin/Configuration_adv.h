@@ -4,6 +4,11 @@
 #define AUTOTEMP
 #define HOTEND_IDLE_TIMEOUT
 #define E0_AUTO_FAN_PIN 44
+#define DEFAULT_MINSEGMENTTIME        20000   // (us) Set with M205 B.
+#define SLOWDOWN
+#if ENABLED(SLOWDOWN)
+  #define SLOWDOWN_DIVISOR 2
+#endif
 #define HOMING_BUMP_MM      { 5, 5, 2 }       // backoff
 #define HOMING_BUMP_DIVISOR { 2, 2, 4 }       // re-bump divisor
 #define Z_STEPPER_AUTO_ALIGN

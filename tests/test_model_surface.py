@@ -257,3 +257,49 @@ def test_dense_rows_from_many_table_angles_give_no_wild_vertex():
         e = np.hypot(*s.vertices_mm[s.supported, :2].T) - R
         assert s.supported.sum() > 3000
         assert np.abs(e).max() < 0.3 and np.abs(e).mean() < 0.03, (radius, np.abs(e).max())
+
+
+
+def test_a_lone_row_is_not_taken_for_a_surface_it_does_not_span():
+    """A first look's sampling: a band of rows 1 mm apart on a block's sides, and above and
+    below it one row each 10 mm away, seen at 45 degrees (noise along the beams). A lone
+    row's points lie in the plane of its beams: fitted there, a vertex got that plane, edge
+    on to the face, and a sigma of um for errors of tenths (RMS z 20-35 on the block's model
+    of tests/e2e/test_auto_scan.py). By Monte Carlo: the supported vertices hold their
+    sigma, the band's are supported (away from its rims) and a lone row's are not."""
+    half = np.array([20.0, 15.0])
+    rng = np.random.default_rng(12)
+    z_all, lone_sup, band_sup = [], 0, []
+    for _ in range(3):
+        P, V = [], []
+        for ax, sign in ((0, 1), (0, -1), (1, 1), (1, -1)):
+            nrm = np.zeros(3)
+            nrm[ax] = sign
+            t = np.zeros(3)
+            t[1 - ax] = 1.0
+            u = np.arange(-half[1 - ax] + 1.0, half[1 - ax] - 0.9, 2.0)
+            rows = [(z, 0.0) for z in (19.0, 20.0, 21.0)] + \
+                [(z, tilt) for z in (5.0, 35.0) for tilt in (0.0, 0.785)]
+            for z, tilt in rows:
+                sgn = rng.choice([-1.0, 1.0], len(u))
+                vd = np.cos(tilt) * nrm + np.sin(tilt) * sgn[:, None] * t
+                X = u[:, None] * t + half[ax] * sign * np.abs(nrm) + [0.0, 0.0, z]
+                P.append(X + rng.normal(0, OA, len(u))[:, None] * vd
+                         + rng.normal(0, 0.002, X.shape))
+                V.append(vd)
+        P, V = np.vstack(P), np.vstack(V)
+        cov = OA ** 2 * np.einsum("ki,kj->kij", V, V) + 0.002 ** 2 * np.eye(3)
+        m = build_surface(P, cov, V, spacing_mm=1.0)
+        check_mesh(m)
+        X = m.vertices_mm
+        face = np.abs(np.abs(X[:, :2]) - half).min(axis=1) < 1.0
+        sup = m.supported & face
+        lone = (np.abs(X[:, 2] - 5) < 1.5) | (np.abs(X[:, 2] - 35) < 1.5)
+        band = face & (np.abs(X[:, 2] - 20) < 0.5) & (np.abs(np.abs(X[:, :2]) - half).max(1) > 4)
+        z_all.append((np.abs(X[sup, :2]) - half).max(axis=1) / m.sigma_mm[sup])
+        lone_sup += int((sup & lone).sum())
+        band_sup.append(m.supported[band].mean())
+    z_all = np.concatenate(z_all)
+    rms = np.sqrt(np.mean(z_all ** 2))
+    assert lone_sup == 0 and min(band_sup) > 0.9
+    assert 0.7 < rms < 1.3, (rms, np.abs(z_all).max())

@@ -18,12 +18,15 @@ point, sandwich over the fit's weights), inflated by the fit's robust reduced ch
 where the residuals significantly exceed the covariances (the model or the noise is worse
 than stated), plus the common (calibration) part, which a local fit cannot average down, plus
 a bias term where the points nearest the vertex misfit the fit (a sharp edge it rounds).
-Vertices with too few points near them, or with all their points on one side (a hole's rim),
-are unsupported: not moved, sigma NaN. The support radius comes from the points' density
-(fuse.neighbourhood_radius), so rows of dense points a level apart get a radius spanning
-levels, and the points' normals use all points within it. Poisson reconstruction would smooth
-more but moves every vertex by a global solve whose error is hard to state per vertex; the
-local fit's error is explicit, which is the point here.
+Vertices with too few points near them, with all their points on one side (a hole's rim),
+or whose fitted plane does not face the beams that measured its points (a lone row: its
+points lie in the plane of their beams, which PCA takes for the surface, edge-on to it, with
+a sigma of um for errors of tenths) are unsupported: not moved, sigma NaN. The support
+radius comes from the points' density (fuse.neighbourhood_radius), so rows of dense points
+a level apart get a radius spanning levels, and the points' normals use all points within
+it. Poisson reconstruction would smooth more but moves every vertex by a global solve whose
+error is hard to state per vertex; the local fit's error is explicit, which is the point
+here.
 """
 
 from __future__ import annotations
@@ -45,6 +48,8 @@ CURVATURE_PRIOR = 1e-3  # local_fit's prior on the quadratic terms: a vertex who
 CHI2_SIGNIFICANT = 2.0   # inflate sigma by chi^2 where it exceeds 1 by this many of its stds
 LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): a bias term
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
+MIN_FACING = 0.25        # a vertex's fitted plane must face the beams that measured it: mean
+# |cos| of the angle between them at least this (75 deg); a lone row's plane is edge-on to them
 
 
 @dataclass
@@ -106,6 +111,19 @@ def _pca_normals(P: np.ndarray, k: int, radius_mm: float, max_k: int) -> np.ndar
         _, vec = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
         out[lo:lo + _CHUNK] = vec[:, :, 0]
     return out
+
+
+def _facing(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, view: np.ndarray,
+            normal: np.ndarray, h_mm: float) -> np.ndarray:
+    """(m,) the weighted mean |cos| between each centre's fitted plane normal and the beams
+    (view, unit, per neighbour) that measured its neighbours. A surface the beams saw faces
+    them (within the incidences the sensor ranges at); a lone row of points lies in the
+    plane of its beams, so the plane fitted to it (whose tilt across the row nothing
+    measured) has its normal across them: near 0."""
+    d = Q - x[:, None, :]
+    w = valid * np.exp(-0.5 * (d * d).sum(axis=2) / h_mm ** 2)
+    c = np.abs(np.einsum("mki,mi->mk", view, normal))
+    return (w * c).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
 
 
 def signed_distance(nodes: np.ndarray, tree: cKDTree, P: np.ndarray, normals: np.ndarray,
@@ -240,7 +258,9 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
         var_c = (w * sc).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
-                & np.isfinite(r["var"]) & (support[sl][sel] >= min_support))
+                & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
+                & (_facing(V[sl][sel], P[ii], valid[sel], vd[ii], r["frame_normal"], h)
+                   >= MIN_FACING))
         g = sel[good] + lo
         offset[g] = r["offset"][good]
         V[g] += r["offset"][good, None] * nn[good]

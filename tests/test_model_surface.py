@@ -259,14 +259,14 @@ def test_dense_rows_from_many_table_angles_give_no_wild_vertex():
         assert np.abs(e).max() < 0.3 and np.abs(e).mean() < 0.03, (radius, np.abs(e).max())
 
 
-
 def test_a_lone_row_is_not_taken_for_a_surface_it_does_not_span():
-    """A first look's sampling: a band of rows 1 mm apart on a block's sides, and above and
-    below it one row each 10 mm away, seen at 45 degrees (noise along the beams). A lone
-    row's points lie in the plane of its beams: fitted there, a vertex got that plane, edge
-    on to the face, and a sigma of um for errors of tenths (RMS z 20-35 on the block's model
-    of tests/e2e/test_auto_scan.py). By Monte Carlo: the supported vertices hold their
-    sigma, the band's are supported (away from its rims) and a lone row's are not."""
+    """A first look's sampling: a band of three rows 1 mm apart on a block's sides, and 15 mm
+    above and below it one lone row each, seen head on and at 45 degrees (noise along the
+    beams). A lone row's points lie in the plane of its beams: fitted there, a vertex got
+    that plane, edge on to the face, and a sigma of um for errors of tenths (RMS z 20-35 on
+    the block's model of tests/e2e/test_auto_scan.py). By Monte Carlo: the supported
+    vertices hold their sigma, the band's are supported (away from its rims) and a lone
+    row's are not."""
     half = np.array([20.0, 15.0])
     rng = np.random.default_rng(12)
     z_all, lone_sup, band_sup = [], 0, []

@@ -130,7 +130,8 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     MAD over their stds (blind to the points the robust fit dropped); rejected (m,), the weight
     fraction the robust fit dropped; centred (m,), the weighted centroid's tangential offset
     over h_mm; and per neighbour s2 (m, K) its variance along the normal, w (m, K) its final
-    weight, r (m, K) its residual (mm)."""
+    weight, w0 (m, K) its Gaussian weight before the robust pass, r (m, K) its residual
+    (mm)."""
     m, K = valid.shape
     d = Q - x[:, None, :]
     w0 = valid * np.exp(-0.5 * ((d * d).sum(axis=2) / h_mm ** 2))
@@ -179,7 +180,7 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm
     return {"offset": a[:, 0], "normal": normal, "frame_normal": nrm, "var": var,
             "chi2": chi2, "chi2_robust": chi2_robust, "n_eff": n_eff,
-            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w, "r": r}
+            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w, "w0": w0, "r": r}
 
 
 def neighbourhood_radius(P_mm: np.ndarray, target: int = 20, min_mm: float = 1.0,

@@ -113,17 +113,15 @@ def _pca_normals(P: np.ndarray, k: int, radius_mm: float, max_k: int) -> np.ndar
     return out
 
 
-def _facing(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, view: np.ndarray,
-            normal: np.ndarray, h_mm: float) -> np.ndarray:
-    """(m,) the weighted mean |cos| between each centre's fitted plane normal and the beams
-    (view, unit, per neighbour) that measured its neighbours. A surface the beams saw faces
-    them (within the incidences the sensor ranges at); a lone row of points lies in the
-    plane of its beams, so the plane fitted to it (whose tilt across the row nothing
-    measured) has its normal across them: near 0."""
-    d = Q - x[:, None, :]
-    w = valid * np.exp(-0.5 * (d * d).sum(axis=2) / h_mm ** 2)
+def _facing(w0: np.ndarray, view: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(m,) the mean |cos| between each centre's fitted plane normal (m, 3) and the beams
+    (view (m, K, 3), unit, per neighbour) that measured its neighbours, weighted as the fit
+    weighs them before its robust pass (w0 (m, K)). A surface the beams saw faces them
+    (within the incidences the sensor ranges at); a lone row of points lies in the plane of
+    its beams, so the plane fitted to it (whose tilt across the row nothing measured) has
+    its normal across them: near 0."""
     c = np.abs(np.einsum("mki,mi->mk", view, normal))
-    return (w * c).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
+    return (w0 * c).sum(axis=1) / np.maximum(w0.sum(axis=1), 1e-300)
 
 
 def signed_distance(nodes: np.ndarray, tree: cKDTree, P: np.ndarray, normals: np.ndarray,
@@ -259,8 +257,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         var_c = (w * sc).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
-                & (_facing(V[sl][sel], P[ii], valid[sel], vd[ii], r["frame_normal"], h)
-                   >= MIN_FACING))
+                & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))
         g = sel[good] + lo
         offset[g] = r["offset"][good]
         V[g] += r["offset"][good, None] * nn[good]

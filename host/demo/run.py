@@ -20,12 +20,13 @@ from .session import TITLES, Demo, stage_block, stage_classify, stage_ranging, s
 
 
 def keep_previous_databases(out: Path) -> None:
-    """Each demo scans into fresh databases: a previous run's `db` and `validation` (and its
-    calibrations and classification results) move to out/previous/<name>-<time of their
-    last change>, so the classifier never mixes runs (or sample rates) and nothing a user may
-    want is deleted."""
-    for name in ("db", "db_fly", "validation", "classify", "ranging.json",
-                 "calibration.toml"):
+    """Each demo scans into fresh databases: a previous run's `db`, `validation` and the
+    campaign's `db_models` (and its calibrations, classifier and classification results)
+    move to out/previous/<name>-<time of their last change>, so neither the classifier nor
+    an object's model mixes runs (other calibrations, sample rates, code) and nothing a user
+    may want is deleted."""
+    for name in ("db", "db_fly", "validation", "db_models", "classify", "ranging.json",
+                 "calibration.toml", "materials.npz"):
         old = out / name
         if old.exists() and not old.is_symlink():
             stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(old.stat().st_mtime))

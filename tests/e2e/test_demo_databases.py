@@ -19,6 +19,21 @@ def test_previous_databases_move_aside_and_nothing_is_lost(tmp_path):
     assert texts == ["run 0", "run 0", "run 1", "run 1"]
 
 
+def test_the_campaigns_database_starts_fresh_so_a_model_is_this_runs_scans(tmp_path):
+    """A campaign into a kept db_models scans every object again: without the move each
+    demo's model fused the scans of every earlier run (other calibrations and code), and the
+    report judged that mix as this run's."""
+    (tmp_path / "db_models" / "scans").mkdir(parents=True)
+    (tmp_path / "db_models" / "scans" / "soda_can-1.h5").write_text("run 0")
+    (tmp_path / "materials.npz").write_text("classifier 0")
+    keep_previous_databases(tmp_path)
+    assert not (tmp_path / "db_models").exists() and not (tmp_path / "materials.npz").exists()
+    kept = sorted(p.name for p in (tmp_path / "previous").iterdir())
+    assert [k.split("-")[0] for k in kept] == ["db_models", "materials"]
+    assert (tmp_path / "previous" / kept[0] / "scans" / "soda_can-1.h5").read_text() == "run 0"
+    assert kept[1].endswith(".npz")
+
+
 def test_nothing_to_move_on_a_first_run(tmp_path):
     keep_previous_databases(tmp_path)
     assert list(tmp_path.iterdir()) == []

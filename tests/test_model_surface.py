@@ -303,3 +303,47 @@ def test_a_lone_row_is_not_taken_for_a_surface_it_does_not_span():
     rms = np.sqrt(np.mean(z_all ** 2))
     assert lone_sup == 0 and min(band_sup) > 0.9
     assert 0.7 < rms < 1.3, (rms, np.abs(z_all).max())
+
+
+def test_a_smear_every_scan_repeats_is_not_averaged_down_across_scans():
+    """Four scans of one cylinder by the same plan: each point's travel smear (a uniform
+    spread along a travel at 45 degrees to the surface, std 0.15 mm along the normal) is the
+    same error in every scan - the surface's slope along the travel sets it - and the noise
+    along the beam is new. Given as cov_repeat with the scan as group, the vertices hold
+    their sigma (RMS z 0.8-1.25) with 1, 2 and 4 scans; as independent noise the fit averages
+    it down by the number of scans and sigma is too small (RMS z > 1.3 with 4)."""
+    rng = np.random.default_rng(11)
+    P, nr, dist = cylinder(1.2, top=False)
+    side = np.abs(nr[:, 2]) < 0.5
+    P, nr = P[side], nr[side]
+    tangent = unit(np.cross([0.0, 0.0, 1.0], nr))
+    travel = 0.735 * unit(nr + tangent)               # mm; 0.15 mm std along the normal
+    smear_cov = np.einsum("ki,kj->kij", travel, travel) / 12.0
+    z_with, z_without = {}, []
+    for _draw in range(3):
+        shift = rng.uniform(-0.5, 0.5, len(P))[:, None] * travel   # drawn once: every scan
+        scans = []
+        for _ in range(4):
+            Q, cov, vd = measure(P + shift, nr, OA, rng)
+            scans.append((Q, cov + smear_cov, vd))
+        for k in (1, 2, 4):
+            Q, cov, vd = (np.concatenate(a) for a in zip(*scans[:k]))
+            group = np.repeat(np.arange(k), len(P))
+            m = build_surface(Q, cov, vd, cov_repeat=np.tile(smear_cov, (k, 1, 1)),
+                              group=group)
+            band = m.supported & (np.abs(m.vertices_mm[:, 2] - 20.0) < 14.0)
+            z_with.setdefault(k, []).append(dist(m.vertices_mm[band]) / m.sigma_mm[band])
+            if k == 4:
+                m = build_surface(Q, cov, vd)
+                band = m.supported & (np.abs(m.vertices_mm[:, 2] - 20.0) < 14.0)
+                z_without.append(dist(m.vertices_mm[band]) / m.sigma_mm[band])
+    for k, z in z_with.items():
+        assert 0.8 < np.sqrt(np.mean(np.concatenate(z) ** 2)) < 1.25, k
+    assert np.sqrt(np.mean(np.concatenate(z_without) ** 2)) > 1.3
+
+
+def test_repeat_needs_its_groups():
+    P, nr, _ = cylinder(1.5, top=False)
+    Q, cov, vd = measure(P, nr, OA, np.random.default_rng(1))
+    with pytest.raises(ValueError, match="cov_repeat"):
+        build_surface(Q, cov, vd, cov_repeat=cov[:10], group=np.zeros(len(P), int))

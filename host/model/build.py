@@ -22,7 +22,7 @@ from ..scan.catalogue import list_scans, verify
 from ..scan.points import MODS, scan_points
 from ..scan.reconstruct import object_points
 from ..scan.scanfile import ScanData, ScanFileError, read_scan
-from .fuse import REASONS, covariance_parts, outliers
+from .fuse import REASONS, covariance_parts, outliers, travel_covariance
 from .store import ModelError, ObjectModel, check_object_id, utc_now
 from .surface import build_surface
 
@@ -65,11 +65,12 @@ def _std(cal: dict, key: str) -> np.ndarray:
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                    table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
-    (mm^2; `common`: the part shared by neighbours, calibration and table), the direction
+    (mm^2; `common`: the part shared by neighbours, calibration and table; `repeat`: the
+    travel smear, which every scan of a place repeats), the direction
     toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
     pts = scan_points(scan)
     cal = scan.calibration
-    keys = ("P", "cov", "common", "view", "mod", "index")
+    keys = ("P", "cov", "common", "repeat", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):
         p = pts[m]
@@ -84,6 +85,8 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
             _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
             stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"])
         out["P"].append(P)
+        out["repeat"].append(np.zeros_like(own) if p["travel"] is None else
+                             travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
         out["cov"].append(own + common)
         out["common"].append(common)
         out["view"].append(_view_dirs(scan, p["theta_deg"]))
@@ -91,7 +94,8 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
         out["index"].append(np.asarray(p["row"], np.int32))
     if not out["P"]:
         return {"P": np.zeros((0, 3)), "cov": np.zeros((0, 3, 3)),
-                "common": np.zeros((0, 3, 3)), "view": np.zeros((0, 3)),
+                "common": np.zeros((0, 3, 3)), "repeat": np.zeros((0, 3, 3)),
+                "view": np.zeros((0, 3)),
                 "mod": np.zeros(0, np.uint8), "index": np.zeros(0, np.int32)}
     return {k: np.concatenate(v) for k, v in out.items()}
 
@@ -180,7 +184,8 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
         + ", ".join(f"{REASONS[int(c)]} {int((why == c).sum())}" for c in np.unique(why[bad]))
         + ")" if bad.any() else "no outliers")
     surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
-                         spacing_mm=spacing_mm, cov_common=pts["common"][good])
+                         spacing_mm=spacing_mm, cov_common=pts["common"][good],
+                         cov_repeat=pts["repeat"][good], group=pts["scan"][good])
     classes: list[str] = []
     prob = np.zeros((len(surf.vertices_mm), 0), np.float32)
     if clf is not None:

@@ -74,8 +74,7 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
     own = (d_std ** 2)[:, None, None] * np.einsum("ki,kj->kij", M @ vu, M @ vu)
     own += stage_std_mm ** 2 * np.eye(3)              # M M^T = I
     if travel_mm is not None:
-        t = np.einsum("kij,kj->ki", M, np.asarray(travel_mm, float).reshape(-1, 3))
-        own += np.einsum("ki,kj->kij", t, t) / 12.0
+        own += _travel_cov(M, travel_mm)
     Jv = d[:, None, None] * (M @ ((np.eye(3) - np.outer(vu, vu)) / vn))
     common = np.einsum("kij,j,klj->kil", Jv, np.asarray(v_std, float) ** 2, Jv)
     common += np.einsum("kij,j,klj->kil", M, np.asarray(X_R_std, float) ** 2, M)
@@ -90,6 +89,22 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
     Jt = np.radians(1.0) * np.column_stack([P[:, 1], -P[:, 0], np.zeros(len(P))])
     common += table_std_deg ** 2 * np.einsum("ki,kj->kij", Jt, Jt)
     return P, own, common
+
+
+def _travel_cov(M: np.ndarray, travel_mm: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) mm^2: a uniform spread along each shot's travel (stage frame, mm), mapped to
+    the object frame by M (k, 3, 3)."""
+    t = np.einsum("kij,kj->ki", M, np.asarray(travel_mm, float).reshape(-1, 3))
+    return np.einsum("ki,kj->kij", t, t) / 12.0
+
+
+def travel_covariance(theta_deg: np.ndarray, n: np.ndarray, travel_mm: np.ndarray
+                      ) -> np.ndarray:
+    """The travel smear's part (k, 3, 3) mm^2 of covariance_parts' own part, in the object
+    frame: model building treats it apart (surface.build_surface's cov_repeat), since it is
+    set by the surface's slope along the travel, which every scan of that place repeats."""
+    return _travel_cov(_rz(np.asarray(theta_deg, float).ravel()) @ table_frame(
+        np.asarray(n, float)).T, travel_mm)
 
 
 def point_covariances(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
@@ -131,7 +146,7 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     fraction the robust fit dropped; centred (m,), the weighted centroid's tangential offset
     over h_mm; and per neighbour s2 (m, K) its variance along the normal, w (m, K) its final
     weight, w0 (m, K) its Gaussian weight before the robust pass, r (m, K) its residual
-    (mm)."""
+    (mm), g0 (m, K) the offset's derivative by its height (var = sum g0^2 s2)."""
     m, K = valid.shape
     d = Q - x[:, None, :]
     w0 = valid * np.exp(-0.5 * ((d * d).sum(axis=2) / h_mm ** 2))
@@ -180,7 +195,8 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm
     return {"offset": a[:, 0], "normal": normal, "frame_normal": nrm, "var": var,
             "chi2": chi2, "chi2_robust": chi2_robust, "n_eff": n_eff,
-            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w, "w0": w0, "r": r}
+            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w, "w0": w0, "r": r,
+            "g0": g0}
 
 
 def neighbourhood_radius(P_mm: np.ndarray, target: int = 20, min_mm: float = 1.0,

@@ -17,7 +17,8 @@ point, sandwich over the fit's weights), inflated by the fit's robust reduced ch
 (from the residuals' MAD, so a face the robust fit rightly ignored at an edge does not count)
 where the residuals significantly exceed the covariances (the model or the noise is worse
 than stated), plus the common (calibration) part, which a local fit cannot average down, plus
-a bias term where the points nearest the vertex misfit the fit (a sharp edge it rounds).
+the travel smear once however many scans repeat it, plus a bias term where the points nearest
+the vertex misfit the fit (a sharp edge it rounds).
 Vertices with too few points near them, with all their points on one side (a hole's rim),
 or whose fitted plane does not face the beams that measured its points (a lone row: its
 points lie in the plane of their beams, which PCA takes for the surface, edge-on to it, with
@@ -124,6 +125,21 @@ def _facing(w0: np.ndarray, view: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return (w0 * c).sum(axis=1) / np.maximum(w0.sum(axis=1), 1e-300)
 
 
+def _repeated(g0: np.ndarray, valid: np.ndarray, s2: np.ndarray, group: np.ndarray
+              ) -> np.ndarray:
+    """(m,) mm^2 the excess variance of a fit's offset when the part s2 (m, K) of its
+    neighbours' variance along the normal is the same error in every group (scan) at one
+    place: (sum_g sqrt(V_g))^2 - sum_g V_g, V_g = sum over the group's neighbours of
+    g0^2 s2 (g0 (m, K): the offset's derivative by each neighbour's height)."""
+    part = np.where(valid, g0 ** 2 * np.maximum(s2, 0.0), 0.0)  # s2 of a rank-1 cov: >= -eps
+    total, root = np.zeros(len(g0)), np.zeros(len(g0))
+    for k in np.unique(group[valid]):
+        vk = np.where(group == k, part, 0.0).sum(axis=1)
+        total += vk
+        root += np.sqrt(vk)
+    return np.maximum(root ** 2 - total, 0.0)
+
+
 def signed_distance(nodes: np.ndarray, tree: cKDTree, P: np.ndarray, normals: np.ndarray,
                     h_mm: float, k: int = 8) -> np.ndarray:
     """Hoppe signed distance (mm, negative inside) at nodes (m, 3): the mean of
@@ -187,6 +203,7 @@ def _mesh(f: np.ndarray, origin: np.ndarray, spacing: float) -> tuple[trimesh.Tr
 def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                   spacing_mm: float = 1.0, support_radius_mm: float | None = None,
                   min_support: int = 10, *, cov_common: np.ndarray | None = None,
+                  cov_repeat: np.ndarray | None = None, group: np.ndarray | None = None,
                   max_voxels: int = 3_000_000, max_neighbours: int = 48,
                   max_offcentre: float = 1.0) -> SurfaceModel:
     """The closed surface of points P_mm (k, 3) mm with covariances cov (k, 3, 3) mm^2 (all of
@@ -204,10 +221,16 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     crowd out the levels beside them.
     cov_common (k, 3, 3) mm^2: the part of cov shared by neighbouring points (fuse's
     covariance_parts' common part), added to sigma^2 as if fully correlated (not averaged).
+    cov_repeat (k, 3, 3) mm^2 and group (k,) int: the part of cov every group (scan) repeats
+    at the same place (fuse.travel_covariance: the smear set by the surface's slope along the
+    travel), independent within a group but fully correlated across groups: its share of the
+    fit variance, sum_g V_g, becomes (sum_g sqrt(V_g))^2, so fusing K scans of one place does
+    not average it down by K.
     sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else 1)
-    + common variance + bias^2), bias^2 = (chi2_near - 1) * s2 where the points nearest the
-    vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT of chi2's stds (an edge the
-    quadratic rounds). params records the choices (spacing, radius, grid, watertight, time).
+    + common variance + bias^2 + the repeated part's excess), bias^2 = (chi2_near - 1) * s2
+    where the points nearest the vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT
+    of chi2's stds (an edge the quadratic rounds). params records the choices (spacing,
+    radius, grid, watertight, time).
     Raises ValueError for fewer than 20 finite points or shapes that do not match."""
     t0 = time.perf_counter()
     P = np.asarray(P_mm, float)
@@ -220,6 +243,12 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         raise ValueError(f"{int(ok.sum())} finite points: too few for a surface (need 20)")
     P, cov, vd = P[ok], cov[ok], vd[ok]
     common = np.zeros_like(cov) if cov_common is None else np.asarray(cov_common, float)[ok]
+    repeat = None
+    if cov_repeat is not None and group is not None:
+        repeat, grp = np.asarray(cov_repeat, float), np.asarray(group)
+        if repeat.shape != (len(ok), 3, 3) or grp.shape != (len(ok),):
+            raise ValueError("cov_repeat (k, 3, 3) and group (k,) must match P")
+        repeat, grp = repeat[ok], grp[ok]
     own = cov - common
     tree = cKDTree(P)
     gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
@@ -272,7 +301,10 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         ms2_l = (wl * r["s2"]).sum(axis=1) / swl
         bias2 = np.where(chi2_l > 1 + LOCAL_SIGNIFICANT * np.sqrt(2 / ne_l),
                          (chi2_l - 1) * ms2_l, 0.0)[good]
-        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good] + bias2)
+        var_r = 0.0 if repeat is None else _repeated(
+            r["g0"], valid[sel], np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
+        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good] + bias2
+                           + var_r)
         supported[g] = True
     mesh = trimesh.Trimesh(V, mesh.faces, process=False)
     normals[~supported] = np.array(mesh.vertex_normals, float)[~supported]

@@ -93,6 +93,33 @@ def test_an_infinite_amplitude_is_still_refused(tmp_path):
         read_raw(write_csv(rows, tmp_path / "rig.csv"))
 
 
+
+def test_the_joint_covariance_is_written_read_back_and_checked(tmp_path):
+    """calibration.toml carries the solve's 9 x 9 covariance of v, n, X_R (models propagate
+    it: the rig's X_R y and n y are one error, correlated about -0.9); it reads back to 1e-8;
+    a file without it still loads (the stds are used); a broken one is one line to fix."""
+    from dmdsm.host.calibration.solver import CalibrationError
+
+    raw = read_raw(write_csv(generate(paper_truth(), 3, "paper"), tmp_path / "rig.csv"))
+    r = solve(center_points(raw))
+    write_result(r, tmp_path / "cal.toml", str(tmp_path / "rig.csv"))
+    cal, text = load_calibration(tmp_path / "cal.toml")
+    c = np.array(cal["cov"])
+    assert np.allclose(c, r.cov, rtol=1e-8, atol=1e-8 * np.abs(r.cov).max())
+    sd = np.sqrt(np.diag(c))
+    assert np.allclose(sd[6:8], cal["X_R_std"][:2], rtol=1e-6)
+    assert c[7, 4] / (sd[7] * sd[4]) < -0.5   # the axis, not X_R alone, is what the rig fixes
+    no_cov = "\n".join(ln for ln in text.splitlines() if not ln.startswith("cov"))
+    (tmp_path / "old.toml").write_text(no_cov)
+    assert "cov" not in load_calibration(tmp_path / "old.toml")[0]
+    for bad in ("cov = [[1, 2], [3, 4]]", "cov = \"none\"",
+                "cov = [" + ", ".join(["[" + ", ".join(["nan"] * 9) + "]"] * 9) + "]"):
+        (tmp_path / "bad.toml").write_text(no_cov + "\n" + bad + "\n")
+        with pytest.raises(CalibrationError, match="cov must be the symmetric 9 x 9") as e:
+            load_calibration(tmp_path / "bad.toml")
+        assert "\n" not in str(e.value)
+
+
 def test_unit_vectors_errors_are_angles_in_json_toml_and_the_demo_table(tmp_path):
     """v and n carry an angular std (deg), the root of the trace of their tangent-plane
     covariance; the demo's table shows their angle to the truth against it, X_R in the

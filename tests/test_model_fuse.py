@@ -91,6 +91,44 @@ def test_each_source_matches_monte_carlo(src, seed, scale):
         assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
 
 
+
+def test_the_calibrations_joint_covariance_matches_monte_carlo_and_the_stds_alone_do_not():
+    """The rig fixes the table's axis at the heights it saw (25 mm here): a tilt of n and a
+    shift of X_R that keep the axis there are one error, X_R y and n y correlated -0.95.
+    With that 9 x 9 covariance (cal_cov), u^T common u matches 2000 Monte Carlo draws of
+    (v, n, X_R) through reconstruct along every direction; the per-component stds alone
+    (the same diagonal) overstate the horizontal variance of points near that height by
+    1.5x or more (v's share, which nothing cancels, keeps it from more)."""
+    rng = np.random.default_rng(12)
+    S, d, th = scan(rng, 6)
+    S[:, 2] = X_R[2] + 25.0 - d * V[2] / np.linalg.norm(V) + rng.uniform(-3, 3, 6)  # ~25 mm
+    L = np.zeros((9, 9))
+    L[0:3, 0:3] = np.diag(STD["v"])
+    L[3:6, 3:6] = np.diag(STD["n"])
+    L[6:9, 3:6] = -25.0 * np.diag(STD["n"])            # X_R moves with n's tilt: axis at 25 mm
+    L[6:9, 6:9] = np.diag([0.3, 0.3, 0.0]) * np.diag(25.0 * STD["n"])
+    cov9 = L @ L.T
+    sd9 = np.sqrt(np.diag(cov9))
+    assert cov9[7, 4] / (sd9[7] * sd9[4]) < -0.9
+    args = (S, d, np.zeros(6), th, V, N, X_R, sd9[0:3], sd9[3:6], sd9[6:9], 0.0, 0.0)
+    _, _, joint = covariance_parts(*args, cal_cov=cov9)
+    _, _, diag = covariance_parts(*args)
+    m = 2000
+    X = np.empty((m, 6, 3))
+    for i in range(m):
+        e = L @ rng.normal(size=9)
+        X[i] = object_points(stage_points(S, d, V / np.linalg.norm(V) + e[0:3]), th,
+                             N / np.linalg.norm(N) + e[3:6], X_R + e[6:9])
+    for u in np.vstack([np.eye(3), rng.normal(size=(3, 3))]):
+        u = u / np.linalg.norm(u)
+        want = np.einsum("i,kij,j->k", u, joint, u)
+        got = np.var(X @ u, axis=0)
+        tr = np.trace(joint, axis1=1, axis2=2)
+        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
+    horizontal = lambda c: c[:, 0, 0] + c[:, 1, 1]  # noqa: E731  (a wall's normal lies there)
+    assert np.all(horizontal(diag) > 1.5 * horizontal(joint))   # 1.6-3.8x here
+
+
 def test_parts_sum_and_split():
     """own + common = the full covariance; the calibration and the table are common, the
     distance and the stage are the point's own; the points are reconstruct's."""

@@ -32,8 +32,23 @@ def load_calibration(path: Path) -> tuple[dict, str]:
     for k in ("v_angle_std_deg", "n_angle_std_deg"):  # absent from files before issue 30
         if isinstance(cal.get(k), (int, float)):
             out[k] = float(cal[k])
+    if "cov" in cal:  # absent from files before the joint covariance was written
+        out["cov"] = _joint_cov(cal["cov"], path)
     out["source"] = str(path)
     return out, text
+
+
+def _joint_cov(value: object, path: Path) -> list[list[float]]:
+    """The file's `cov`: a finite, symmetric 9 x 9 matrix with a non-negative diagonal."""
+    try:
+        c = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (9, 9) or not np.isfinite(c).all() or (np.diag(c) < 0).any() or \
+            not np.allclose(c, c.T, rtol=1e-6, atol=1e-300):
+        raise CalibrationError(f"{path}: cov must be the symmetric 9 x 9 covariance of v, n, "
+                               f"X_R; run `dmdsm calibrate` again")
+    return c.tolist()
 
 
 def result_dict(r: CalibrationResult) -> dict:
@@ -61,6 +76,9 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
              f"X_R_std = {vec(r.std['X_R'])}",
              *(f"{k}_angle_std_deg = {r.angle_std_deg[k]:.6g}" for k in ("v", "n")
                if k in r.angle_std_deg),
+             *([] if r.cov is None else
+               ["# joint covariance of v, n (unitless) and X_R (mm), 9 x 9 in that order",
+                "cov = [" + ", ".join(vec(row) for row in 0.5 * (r.cov + r.cov.T)) + "]"]),
              f"rms_residual_mm = {r.rms_residual_mm:.6g}",
              f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
              f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",

@@ -62,6 +62,13 @@ def _std(cal: dict, key: str) -> np.ndarray:
     return s if s.shape == (3,) and np.all(np.isfinite(s)) else np.zeros(3)
 
 
+def _joint_cov(cal: dict) -> np.ndarray | None:
+    """A calibration's joint 9 x 9 covariance of v, n, X_R, or None where the file carries
+    none (calibrations written before it: the per-component stds are used)."""
+    c = np.asarray(cal.get("cov", ()), float)
+    return c if c.shape == (9, 9) and np.all(np.isfinite(c)) else None
+
+
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                    table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
@@ -83,7 +90,8 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
         P, own, common = covariance_parts(
             p["S"], p["d"], d_std, p["theta_deg"], cal["v"], cal["n"], cal["X_R"],
             _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
-            stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"])
+            stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"],
+            cal_cov=_joint_cov(cal))
         out["P"].append(P)
         out["repeat"].append(np.zeros_like(own) if p["travel"] is None else
                              travel_covariance(p["theta_deg"], cal["n"], p["travel"]))

@@ -41,15 +41,18 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
                      theta_deg: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
                      v_std: np.ndarray, n_std: np.ndarray, X_R_std: np.ndarray,
                      stage_std_mm: float = 0.01, table_std_deg: float = 0.01,
-                     travel_mm: np.ndarray | None = None
+                     travel_mm: np.ndarray | None = None, cal_cov: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object-frame points P (k, 3) mm and their covariance (k, 3, 3) mm^2 in two parts:
     (P, own, common). own: the distance's std along v (d_std_mm, mm), the stage's noise
     (stage_std_mm per axis) and, with travel_mm (k, 3; stage frame, mm: the stage's travel
     while the shot was averaged), that travel's smear: where along it the echo came from is
     unknown, a uniform spread of variance travel^2 / 12 along it; common: the calibration
-    (v_std, n_std per component, unitless; X_R_std mm) and the table angle (table_std_deg,
-    deg, shared by the points of one stop).
+    (v_std, n_std per component, unitless; X_R_std mm; or with cal_cov, their joint 9 x 9
+    covariance from `dmdsm calibrate`, v, n, X_R in that order: the rig fixes the table's
+    axis at the heights it saw, so an error of n's tilt and one of X_R mostly cancel there,
+    and the per-component stds alone overstate the points' error by up to 3x) and the table
+    angle (table_std_deg, deg, shared by the points of one stop).
     Raises ValueError on a non-finite d_std (a distance without its std has no covariance)."""
     S = np.asarray(S_mm, float).reshape(-1, 3)
     d = np.asarray(d_mm, float).ravel()
@@ -76,8 +79,6 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
     if travel_mm is not None:
         own += _travel_cov(M, travel_mm)
     Jv = d[:, None, None] * (M @ ((np.eye(3) - np.outer(vu, vu)) / vn))
-    common = np.einsum("kij,j,klj->kil", Jv, np.asarray(v_std, float) ** 2, Jv)
-    common += np.einsum("kij,j,klj->kil", M, np.asarray(X_R_std, float) ** 2, M)
     h = 1e-6
     Jn = np.empty((len(S), 3, 3))
     for j in range(3):
@@ -85,7 +86,13 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
         e[j] = h
         dBt = (table_frame(n + e) - table_frame(n - e)).T / (2 * h)
         Jn[:, :, j] = np.einsum("kij,kj->ki", Rz, rel @ dBt.T)
-    common += np.einsum("kij,j,klj->kil", Jn, np.asarray(n_std, float) ** 2, Jn)
+    if cal_cov is not None:   # v, n and X_R together: the rig pins the axis where it saw it
+        J = np.concatenate([Jv, Jn, -M], axis=2)      # (k, 3, 9)
+        common = np.einsum("kia,ab,kjb->kij", J, np.asarray(cal_cov, float), J)
+    else:
+        common = np.einsum("kij,j,klj->kil", Jv, np.asarray(v_std, float) ** 2, Jv)
+        common += np.einsum("kij,j,klj->kil", M, np.asarray(X_R_std, float) ** 2, M)
+        common += np.einsum("kij,j,klj->kil", Jn, np.asarray(n_std, float) ** 2, Jn)
     Jt = np.radians(1.0) * np.column_stack([P[:, 1], -P[:, 0], np.zeros(len(P))])
     common += table_std_deg ** 2 * np.einsum("ki,kj->kij", Jt, Jt)
     return P, own, common

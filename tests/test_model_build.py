@@ -206,3 +206,18 @@ def test_bad_input_is_one_line(built, tmp_path, capsys, argv, says):
     err = capsys.readouterr().err
     assert code == 2 and says in err and len(err.strip().splitlines()) == 1
     assert "Traceback" not in err
+
+
+def test_a_scan_files_joint_covariance_is_used_only_if_it_is_one():
+    """A scan file is the user's: its calibration's `cov` is taken only when it is a finite,
+    symmetric, positive semi-definite 9 x 9 matrix; anything else falls back to the stds
+    (a negative variance would give a vertex a NaN sigma)."""
+    from dmdsm.host.model.build import _joint_cov
+
+    A = np.random.default_rng(0).normal(size=(9, 9))
+    C = A @ A.T * 1e-6
+    assert np.array_equal(_joint_cov({"cov": C.tolist()}), C)
+    for bad in (-C, C + np.triu(np.ones((9, 9)), 1), np.full((9, 9), np.nan), [[1.0, 2.0]],
+                "x", None):
+        assert _joint_cov({"cov": bad}) is None
+    assert _joint_cov({}) is None

@@ -64,9 +64,17 @@ def _std(cal: dict, key: str) -> np.ndarray:
 
 def _joint_cov(cal: dict) -> np.ndarray | None:
     """A calibration's joint 9 x 9 covariance of v, n, X_R, or None where the file carries
-    none (calibrations written before it: the per-component stds are used)."""
-    c = np.asarray(cal.get("cov", ()), float)
-    return c if c.shape == (9, 9) and np.all(np.isfinite(c)) else None
+    none, or one that is not a covariance (not finite, symmetric, positive semi-definite):
+    then the per-component stds are used, as for calibrations written before it."""
+    try:
+        c = np.asarray(cal.get("cov", ()), float)
+    except (TypeError, ValueError):
+        return None
+    if c.shape != (9, 9) or not np.all(np.isfinite(c)) or not np.allclose(c, c.T, rtol=1e-6,
+                                                                         atol=1e-300):
+        return None
+    scale = float(np.abs(c).max(initial=0.0))
+    return c if np.linalg.eigvalsh(0.5 * (c + c.T)).min() >= -1e-9 * scale else None
 
 
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,

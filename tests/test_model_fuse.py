@@ -67,6 +67,20 @@ def sample(S, d, th, src, scale, rng, m):
     return out
 
 
+def matches_monte_carlo(X, cov, rng):
+    """Along the 3 axes and 3 random directions u, the sample variance of u . X over the
+    draws X (m, k, 3) matches u^T cov u within 6 sigma of a variance (6 sqrt(2/m)); + 1e-5
+    tr: a direction whose first-order variance vanishes (radial, for the table angle) still
+    has second-order terms, which first-order propagation leaves out."""
+    m = len(X)
+    tr = np.trace(cov, axis1=1, axis2=2)
+    for u in np.vstack([np.eye(3), rng.normal(size=(3, 3))]):
+        u = u / np.linalg.norm(u)
+        want = np.einsum("i,kij,j->k", u, cov, u)
+        got = np.var(X @ u, axis=0)
+        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
+
+
 @settings(max_examples=4)
 @given(seed=st.integers(0, 2 ** 32 - 1), scale=st.floats(0.3, 3.0))
 @pytest.mark.parametrize("src", ["d", "v", "n", "X_R", "stage", "theta"])
@@ -81,14 +95,7 @@ def test_each_source_matches_monte_carlo(src, seed, scale):
     X = sample(S, d, th, src, scale, rng, m)
     assert np.allclose(X.mean(axis=0), P, atol=1e-9 + 6 * np.sqrt(
         np.trace(cov, axis1=1, axis2=2).max() / m))
-    for u in np.vstack([np.eye(3), rng.normal(size=(3, 3))]):
-        u = u / np.linalg.norm(u)
-        want = np.einsum("i,kij,j->k", u, cov, u)
-        got = np.var(X @ u, axis=0)
-        tr = np.trace(cov, axis1=1, axis2=2)
-        # + 1e-5 tr: a direction whose first-order variance vanishes (radial, for the table
-        # angle) still has second-order terms, which first-order propagation leaves out
-        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
+    matches_monte_carlo(X, cov, rng)
 
 
 
@@ -119,12 +126,7 @@ def test_the_calibrations_joint_covariance_matches_monte_carlo_and_the_stds_alon
         e = L @ rng.normal(size=9)
         X[i] = object_points(stage_points(S, d, V / np.linalg.norm(V) + e[0:3]), th,
                              N / np.linalg.norm(N) + e[3:6], X_R + e[6:9])
-    for u in np.vstack([np.eye(3), rng.normal(size=(3, 3))]):
-        u = u / np.linalg.norm(u)
-        want = np.einsum("i,kij,j->k", u, joint, u)
-        got = np.var(X @ u, axis=0)
-        tr = np.trace(joint, axis1=1, axis2=2)
-        assert np.all(np.abs(got - want) <= 6 * np.sqrt(2 / m) * want + 1e-5 * tr), (got, want)
+    matches_monte_carlo(X, joint, rng)
     horizontal = lambda c: c[:, 0, 0] + c[:, 1, 1]  # noqa: E731  (a wall's normal lies there)
     assert np.all(horizontal(diag) > 1.5 * horizontal(joint))   # 1.6-3.8x here
 

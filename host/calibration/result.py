@@ -33,22 +33,27 @@ def load_calibration(path: Path) -> tuple[dict, str]:
         if isinstance(cal.get(k), (int, float)):
             out[k] = float(cal[k])
     if "cov" in cal:  # absent from files before the joint covariance was written
-        out["cov"] = _joint_cov(cal["cov"], path)
+        c = joint_covariance(cal["cov"])
+        if c is None:
+            raise CalibrationError(f"{path}: cov must be the symmetric 9 x 9 covariance of v, "
+                                   f"n, X_R; run `dmdsm calibrate` again")
+        out["cov"] = c.tolist()
     out["source"] = str(path)
     return out, text
 
 
-def _joint_cov(value: object, path: Path) -> list[list[float]]:
-    """The file's `cov`: a finite, symmetric 9 x 9 matrix with a non-negative diagonal."""
+def joint_covariance(value: object) -> np.ndarray | None:
+    """A calibration's `cov` as a 9 x 9 array (v, n, X_R) when it is one - finite, symmetric,
+    positive semi-definite - else None."""
     try:
         c = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        c = np.zeros(0)
-    if c.shape != (9, 9) or not np.isfinite(c).all() or (np.diag(c) < 0).any() or \
+        return None
+    if c.shape != (9, 9) or not np.isfinite(c).all() or \
             not np.allclose(c, c.T, rtol=1e-6, atol=1e-300):
-        raise CalibrationError(f"{path}: cov must be the symmetric 9 x 9 covariance of v, n, "
-                               f"X_R; run `dmdsm calibrate` again")
-    return c.tolist()
+        return None
+    scale = float(np.abs(c).max(initial=0.0))
+    return c if np.linalg.eigvalsh(0.5 * (c + c.T)).min() >= -1e-9 * scale else None
 
 
 def result_dict(r: CalibrationResult) -> dict:

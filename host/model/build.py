@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..calibration.result import joint_covariance
 from ..classify.materials import ClassifyError, FusedModel, scan_dataset
 from ..classify.model_file import check_provenance, load_model
 from ..scan.catalogue import list_scans, verify
@@ -63,18 +64,10 @@ def _std(cal: dict, key: str) -> np.ndarray:
 
 
 def _joint_cov(cal: dict) -> np.ndarray | None:
-    """A calibration's joint 9 x 9 covariance of v, n, X_R, or None where the file carries
-    none, or one that is not a covariance (not finite, symmetric, positive semi-definite):
-    then the per-component stds are used, as for calibrations written before it."""
-    try:
-        c = np.asarray(cal.get("cov", ()), float)
-    except (TypeError, ValueError):
-        return None
-    if c.shape != (9, 9) or not np.all(np.isfinite(c)) or not np.allclose(c, c.T, rtol=1e-6,
-                                                                         atol=1e-300):
-        return None
-    scale = float(np.abs(c).max(initial=0.0))
-    return c if np.linalg.eigvalsh(0.5 * (c + c.T)).min() >= -1e-9 * scale else None
+    """A scan's calibration's joint 9 x 9 covariance of v, n, X_R, or None where it carries
+    none or one that is not a covariance: then the per-component stds are used, as for
+    calibrations written before it."""
+    return joint_covariance(cal.get("cov", ()))
 
 
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
@@ -101,8 +94,7 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
             stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"],
             cal_cov=_joint_cov(cal))
         out["P"].append(P)
-        out["repeat"].append(np.zeros_like(own) if p["travel"] is None else
-                             travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
+        out["repeat"].append(travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
         out["cov"].append(own + common)
         out["common"].append(common)
         out["view"].append(_view_dirs(scan, p["theta_deg"]))

@@ -136,7 +136,8 @@ def _median(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
               h_mm: float, ref_normal: np.ndarray | None = None, iters: int = 4,
-              curvature_prior: float = 1e-9) -> dict[str, np.ndarray]:
+              curvature_prior: float = 1e-9, point_var: np.ndarray | None = None
+              ) -> dict[str, np.ndarray]:
     """Robust weighted quadratic fit of each centre's neighbours, evaluated at the centre.
 
     x (m, 3) centres, Q (m, K, 3) neighbours (mm), valid (m, K) which of them are real (each row
@@ -144,6 +145,11 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     The frame's normal is the weighted PCA normal (signed along ref_normal if given); the
     height z(u, v) = a0 + a1 u + a2 v + a3 u^2 + a4 uv + a5 v^2 is refitted `iters` times with
     Tukey weights on residuals over max(1.4826 MAD, the points' own std along the normal).
+    point_var (m, K) mm^2, if given: each neighbour's variance along its own surface normal;
+    the Gaussian weights are then times median(point_var) / point_var (inverse variance, so
+    a smeared or weak point counts less than a precise one) and the Tukey scale grows with
+    sqrt(point_var / median). Along its own normal, not the frame's: at an edge the other
+    face's points have their noise across the frame's normal and would look precise.
     Returns: offset (m,) mm, the fitted surface's height above the centre along `normal`;
     normal (m, 3), the fitted surface's unit normal there; var (m,) mm^2, the offset's variance
     from the points' covariances (sandwich, weights fixed); chi2 (m,), the weighted residuals'
@@ -171,7 +177,14 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=2)
     s2 = np.einsum("mkj,mj->mk", np.matmul(cov, nrm[:, None, :, None])[..., 0], nrm)
     s2 = np.where(valid, np.maximum(s2, 1e-12), 1.0)
-    w = w0.copy()
+    zs = np.ones_like(s2)
+    wq = w0
+    if point_var is not None:
+        pv = np.where(valid, np.maximum(point_var, 1e-12), 1.0)
+        ref = _median(pv, valid)[:, None]
+        wq = w0 * ref / pv
+        zs = np.sqrt(pv / ref)
+    w = wq.copy()
     # curvature_prior: a ridge on the quadratic terms (u, v in weight scales), times sum w.
     # Where the neighbours span too few rows in one direction (a scan's levels near the
     # band's edge: two rows) that curvature is not determined, and without a prior the fit
@@ -184,10 +197,10 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
         r = z - np.matmul(A, a[:, :, None])[:, :, 0]
         if it == iters:
             break
-        mad = 1.4826 * _median(np.abs(r), valid)
+        mad = 1.4826 * _median(np.abs(r) / zs, valid)
         scale = np.maximum(mad, np.sqrt(_median(s2, valid)))
-        t = r / (TUKEY_C * scale[:, None])
-        w = w0 * np.where(np.abs(t) < 1, (1 - t * t) ** 2, 0.0)
+        t = r / (TUKEY_C * scale[:, None] * zs)
+        w = wq * np.where(np.abs(t) < 1, (1 - t * t) ** 2, 0.0)
     g0 = np.matmul(Aw, Ninv[:, 0, :, None])[:, :, 0]       # d a0 / d z_k
     var = np.einsum("mk,mk->m", g0 ** 2, s2)
     sw_f = w.sum(axis=1)
@@ -202,8 +215,8 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm
     return {"offset": a[:, 0], "normal": normal, "frame_normal": nrm, "var": var,
             "chi2": chi2, "chi2_robust": chi2_robust, "n_eff": n_eff,
-            "rejected": 1 - sw_f / sw, "centred": cen, "s2": s2, "w": w, "w0": w0, "r": r,
-            "g0": g0}
+            "rejected": 1 - sw_f / wq.sum(axis=1), "centred": cen, "s2": s2, "w": w, "w0": w0,
+            "r": r, "g0": g0}
 
 
 def neighbourhood_radius(P_mm: np.ndarray, target: int = 20, min_mm: float = 1.0,

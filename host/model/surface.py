@@ -11,12 +11,17 @@ points) instead of leaving the surface open. The grid's outer layer is forced ou
 marching cubes (skimage) always yields closed surfaces; the largest component is kept. (3) The
 grid only gives topology and a first position (about a voxel): each vertex is then moved along
 its local normal onto a robust weighted quadratic fit of the points near it (MLS, fuse.local_fit)
-- a quadratic, not a plane, so a radius of 15 mm is followed to a few um over the support - and
+- a quadratic, not a plane, so a radius of 15 mm is followed to a few um over the support;
+each point weighted by the inverse of its own variance along its own normal, so a smeared or
+weak point beside precise ones counts as little as it deserves - and
 its sigma is that fit's height std propagated from the points' covariances (n^T Sigma n per
 point, sandwich over the fit's weights), inflated by the fit's robust reduced chi-square
 (from the residuals' MAD, so a face the robust fit rightly ignored at an edge does not count)
 where the residuals significantly exceed the covariances (the model or the noise is worse
-than stated), plus the common (calibration) part, which a local fit cannot average down, plus
+than stated), else scaled down by the reduced chi-square of the fits around it where the
+points scatter less than stated (the ranging's floor is its calibration target's scatter,
+and a waveform averaged over a moving spot averages the surface's own scatter down), plus
+the common (calibration) part, which a local fit cannot average down, plus
 the travel smear once however many scans repeat it, plus a bias term where the points nearest
 the vertex misfit the fit (a sharp edge it rounds).
 Vertices with too few points near them, with all their points on one side (a hole's rim),
@@ -51,6 +56,8 @@ LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): 
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
 MIN_FACING = 0.25        # a vertex's fitted plane must face the beams that measured it: mean
 # |cos| of the angle between them at least this (75 deg); a lone row's plane is edge-on to them
+SCATTER_VERTICES = 64    # the scatter factor's neighbourhood: this many supported vertices...
+SCATTER_RADIUS = 2.0     # ... within this many support radii
 
 
 @dataclass
@@ -123,6 +130,26 @@ def _facing(w0: np.ndarray, view: np.ndarray, normal: np.ndarray) -> np.ndarray:
     its normal across them: near 0."""
     c = np.abs(np.einsum("mki,mi->mk", view, normal))
     return (w0 * c).sum(axis=1) / np.maximum(w0.sum(axis=1), 1e-300)
+
+
+def _scatter_factor(V: np.ndarray, supported: np.ndarray, chi2: np.ndarray, nu: np.ndarray,
+                    radius_mm: float) -> np.ndarray:
+    """Per vertex, how much less its points scatter about their fits than their stated
+    variances say: the median over the supported vertices near it (SCATTER_VERTICES within
+    radius_mm) of their fits' reduced chi-square (chi2 with nu degrees of freedom, divided by
+    the chi-square's median over its mean, (1 - 2 / 9 nu)^3), at most 1 (a larger scatter is
+    the per-vertex inflation's). 1 where there is no supported vertex."""
+    lam = np.ones(len(V))
+    idx = np.flatnonzero(supported)
+    if len(idx) == 0:
+        return lam
+    c = chi2[idx] / (1 - 2 / (9 * nu[idx])) ** 3
+    k = min(SCATTER_VERTICES, len(idx))
+    dist, nb = cKDTree(V[idx]).query(V[idx], k=k, distance_upper_bound=radius_mm, workers=-1)
+    near = np.where(np.isfinite(dist.reshape(len(idx), k)), c[np.minimum(
+        nb.reshape(len(idx), k), len(idx) - 1)], np.nan)
+    lam[idx] = np.nanmedian(near, axis=1)   # the vertex itself is always there
+    return np.minimum(lam, 1.0)
 
 
 def _repeated(g0: np.ndarray, valid: np.ndarray, s2: np.ndarray, group: np.ndarray
@@ -226,8 +253,8 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     travel), independent within a group but fully correlated across groups: its share of the
     fit variance, sum_g V_g, becomes (sum_g sqrt(V_g))^2, so fusing K scans of one place does
     not average it down by K.
-    sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else 1)
-    + common variance + bias^2 + the repeated part's excess), bias^2 = (chi2_near - 1) * s2
+    sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else the
+    scatter factor: _scatter_factor, <= 1) + common variance + bias^2 + the repeated part's excess), bias^2 = (chi2_near - 1) * s2
     where the points nearest the vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT
     of chi2's stds (an edge the quadratic rounds). params records the choices (spacing,
     radius, grid, watertight, time).
@@ -256,6 +283,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
          if support_radius_mm is None else support_radius_mm)
     h = R / 2
     normals_p = point_normals(P, vd, radius_mm=R)
+    pvar = np.einsum("ki,kij,kj->k", normals_p, own, normals_p)
     origin, shape, s = _grid(P, spacing_mm, R + 2 * spacing_mm, max_voxels)
     f = _hoppe_grid(P, normals_p, tree, origin, shape, s, h)
     mesh, dropped = _mesh(f, origin, s)
@@ -268,6 +296,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     normals = ref.copy()
     supported = np.zeros(len(V), bool)
     offset = np.zeros(len(V))
+    var_fit, infl, chi2_w, nu, var_rest = (np.full(len(V), np.nan) for _ in range(5))
     for lo in range(0, len(V), chunk):
         sl = slice(lo, lo + chunk)
         dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R, workers=-1)
@@ -279,7 +308,8 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
             continue
         ii = np.where(valid[sel], idx[sel], 0)
         r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel],
-                      curvature_prior=CURVATURE_PRIOR)
+                      curvature_prior=CURVATURE_PRIOR,
+                      point_var=pvar[ii])
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
@@ -303,9 +333,15 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                          (chi2_l - 1) * ms2_l, 0.0)[good]
         var_r = 0.0 if repeat is None else _repeated(
             r["g0"], valid[sel], np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
-        sigma[g] = np.sqrt(r["var"][good] * np.where(misfit, chi2, 1.0) + var_c[good] + bias2
-                           + var_r)
+        var_fit[g] = r["var"][good]
+        infl[g] = np.where(misfit, chi2, np.nan)
+        chi2_w[g] = r["chi2"][good]
+        nu[g] = np.maximum(r["n_eff"][good] - 6, 1.0)
+        var_rest[g] = var_c[good] + bias2 + var_r
         supported[g] = True
+    lam = _scatter_factor(V, supported, chi2_w, nu, SCATTER_RADIUS * R)
+    sigma[supported] = np.sqrt(var_fit[supported] * np.where(
+        np.isfinite(infl[supported]), infl[supported], lam[supported]) + var_rest[supported])
     mesh = trimesh.Trimesh(V, mesh.faces, process=False)
     normals[~supported] = np.array(mesh.vertex_normals, float)[~supported]
     params = {"spacing_mm": s, "support_radius_mm": R, "weight_scale_mm": h,

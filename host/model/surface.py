@@ -23,7 +23,10 @@ points scatter less than stated (the ranging's floor is its calibration target's
 and a waveform averaged over a moving spot averages the surface's own scatter down), plus
 the common (calibration) part, which a local fit cannot average down, plus
 the travel smear once however many scans repeat it, plus a bias term where the points nearest
-the vertex misfit the fit (a sharp edge it rounds).
+the vertex misfit the fit (a sharp edge it rounds). Where the points near a vertex come from
+two faces (their normals spread by half of edges.MIN_ANGLE_DEG, or that misfit), two planes
+replace the quadratic if they fit their points far better (EDGE_BETTER): edges.py; the block's
+vertical edges then stay sharp instead of rounded by 0.2-0.4 mm.
 Vertices with too few points near them, with all their points on one side (a hole's rim),
 or whose fitted plane does not face the beams that measured its points (a lone row: its
 points lie in the plane of their beams, which PCA takes for the surface, edge-on to it, with
@@ -46,6 +49,7 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
+from .edges import MIN_ANGLE_DEG, edge_fit
 from .fuse import local_fit, neighbourhood_radius
 
 _CHUNK = 20000
@@ -56,6 +60,7 @@ LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): 
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
 MIN_FACING = 0.25        # a vertex's fitted plane must face the beams that measured it: mean
 # |cos| of the angle between them at least this (75 deg); a lone row's plane is edge-on to them
+EDGE_BETTER = 0.5       # two planes replace the quadratic where their chi^2 is below this share
 SCATTER_VERTICES = 64    # the scatter factor's neighbourhood: this many supported vertices...
 SCATTER_RADIUS = 2.0     # ... within this many support radii
 
@@ -254,10 +259,11 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     fit variance, sum_g V_g, becomes (sum_g sqrt(V_g))^2, so fusing K scans of one place does
     not average it down by K.
     sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else the
-    scatter factor: _scatter_factor, <= 1) + common variance + bias^2 + the repeated part's excess), bias^2 = (chi2_near - 1) * s2
-    where the points nearest the vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT
-    of chi2's stds (an edge the quadratic rounds). params records the choices (spacing,
-    radius, grid, watertight, time).
+    scatter factor: _scatter_factor, <= 1) + common variance + bias^2 + the repeated part's
+    excess), bias^2 = (chi2_near - 1) * s2 where the points nearest the vertex (weight scale
+    h/2) misfit the fit by LOCAL_SIGNIFICANT of chi2's stds (an edge the quadratic rounds).
+    params records the choices (spacing, radius, grid, watertight, time, edge_vertices: how
+    many vertices two planes placed).
     Raises ValueError for fewer than 20 finite points or shapes that do not match."""
     t0 = time.perf_counter()
     P = np.asarray(P_mm, float)
@@ -297,6 +303,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     supported = np.zeros(len(V), bool)
     offset = np.zeros(len(V))
     var_fit, infl, chi2_w, nu, var_rest = (np.full(len(V), np.nan) for _ in range(5))
+    n_edges = 0
     for lo in range(0, len(V), chunk):
         sl = slice(lo, lo + chunk)
         dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R, workers=-1)
@@ -317,26 +324,37 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
                 & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))
-        g = sel[good] + lo
-        offset[g] = r["offset"][good]
-        V[g] += r["offset"][good, None] * nn[good]
-        normals[g] = r["normal"][good]
-        chi2 = r["chi2_robust"][good]
-        misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(
-            2 / (MAD_EFFICIENCY * np.maximum(r["n_eff"][good] - 6, 1)))
         wl = valid[sel] * np.exp(-0.5 * (np.where(valid[sel], dist[sel], 0) / (h / 2)) ** 2)
         swl = wl.sum(axis=1)
         chi2_l = (wl * r["r"] ** 2 / r["s2"]).sum(axis=1) / swl
         ne_l = swl ** 2 / (wl * wl).sum(axis=1)
         ms2_l = (wl * r["s2"]).sum(axis=1) / swl
         bias2 = np.where(chi2_l > 1 + LOCAL_SIGNIFICANT * np.sqrt(2 / ne_l),
-                         (chi2_l - 1) * ms2_l, 0.0)[good]
+                         (chi2_l - 1) * ms2_l, 0.0)
+        move, fit_var, n_eff = r["offset"].copy(), r["var"].copy(), r["n_eff"].copy()
+        nrm_v, chi2 = r["normal"].copy(), r["chi2_robust"].copy()
+        spread = np.where(valid[sel], np.einsum("mki,mi->mk", normals_p[ii], nn), 1.0).min(1)
+        e = np.flatnonzero(good & ((bias2 > 0) | (spread < np.cos(np.radians(MIN_ANGLE_DEG / 2)))))
+        if len(e):
+            k = edge_fit(V[sl][sel][e], P[ii[e]], valid[sel][e], own[ii[e]], normals_p[ii[e]],
+                         pvar[ii[e]], h, nn[e])
+            take = k["ok"] & (k["chi2"] < EDGE_BETTER * r["chi2"][e]) & (np.abs(k["t"]) < R / 2)
+            e, n_edges = e[take], n_edges + int(take.sum())
+            move[e], fit_var[e], nrm_v[e] = k["t"][take], k["var"][take], k["normal"][take]
+            chi2[e], n_eff[e], bias2[e] = k["chi2"][take], k["n_eff"][take], 0.0
+        g = sel[good] + lo
+        offset[g] = move[good]
+        V[g] += move[good, None] * nn[good]
+        normals[g] = nrm_v[good]
+        chi2, bias2 = chi2[good], bias2[good]
+        misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(
+            2 / (MAD_EFFICIENCY * np.maximum(n_eff[good] - 6, 1)))
         var_r = 0.0 if repeat is None else _repeated(
             r["g0"], valid[sel], np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
-        var_fit[g] = r["var"][good]
+        var_fit[g] = fit_var[good]
         infl[g] = np.where(misfit, chi2, np.nan)
         chi2_w[g] = r["chi2"][good]
-        nu[g] = np.maximum(r["n_eff"][good] - 6, 1.0)
+        nu[g] = np.maximum(n_eff[good] - 6, 1.0)
         var_rest[g] = var_c[good] + bias2 + var_r
         supported[g] = True
     lam = _scatter_factor(V, supported, chi2_w, nu, SCATTER_RADIUS * R)
@@ -349,7 +367,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
               "point_spacing_mm": gap, "n_points": int(len(P)),
               "n_dropped_nonfinite": int((~ok).sum()), "grid_shape": list(shape),
               "components_dropped": dropped, "watertight": bool(mesh.is_watertight),
-              "max_move_mm": float(np.abs(offset).max(initial=0.0)),
+              "max_move_mm": float(np.abs(offset).max(initial=0.0)), "edge_vertices": n_edges,
               "build_s": time.perf_counter() - t0}
     return SurfaceModel(V, np.asarray(mesh.faces, np.int32), normals, sigma, support,
                         supported, params)

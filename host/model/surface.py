@@ -332,7 +332,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         bias2 = np.where(chi2_l > 1 + LOCAL_SIGNIFICANT * np.sqrt(2 / ne_l),
                          (chi2_l - 1) * ms2_l, 0.0)
         move, fit_var, n_eff = r["offset"].copy(), r["var"].copy(), r["n_eff"].copy()
-        nrm_v, chi2 = r["normal"].copy(), r["chi2_robust"].copy()
+        nrm_v, chi2, chi2_fit = r["normal"].copy(), r["chi2_robust"].copy(), r["chi2"].copy()
         spread = np.where(valid[sel], np.einsum("mki,mi->mk", normals_p[ii], nn), 1.0).min(1)
         e = np.flatnonzero(good & ((bias2 > 0) | (spread < np.cos(np.radians(MIN_ANGLE_DEG / 2)))))
         if len(e):
@@ -342,6 +342,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
             e, n_edges = e[take], n_edges + int(take.sum())
             move[e], fit_var[e], nrm_v[e] = k["t"][take], k["var"][take], k["normal"][take]
             chi2[e], n_eff[e], bias2[e] = k["chi2"][take], k["n_eff"][take], 0.0
+            chi2_fit[e] = k["chi2"][take]
         g = sel[good] + lo
         offset[g] = move[good]
         V[g] += move[good, None] * nn[good]
@@ -353,7 +354,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
             r["g0"], valid[sel], np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
         var_fit[g] = fit_var[good]
         infl[g] = np.where(misfit, chi2, np.nan)
-        chi2_w[g] = r["chi2"][good]
+        chi2_w[g] = chi2_fit[good]
         nu[g] = np.maximum(n_eff[good] - 6, 1.0)
         var_rest[g] = var_c[good] + bias2 + var_r
         supported[g] = True

@@ -180,8 +180,11 @@ def test_ctrl_c_or_an_error_between_writes_closes_the_file_with_its_summary(tmp_
 
 def test_sigint_to_a_recording_process_leaves_a_closed_readable_file(tmp_path):
     path = tmp_path / "live.mcap"
+    # Ctrl-C's own handler, set here: a child inherits an ignored SIGINT from a shell's
+    # background job (`make test &`), and Python then installs no KeyboardInterrupt at all
     script = f"""
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from dmdsm.host.robotics import mcap_file as F, messages as M
 with F.McapRecorder({str(path)!r}) as rec:
     i = 0

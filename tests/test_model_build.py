@@ -13,7 +13,7 @@ from dmdsm.host.entry import main
 from dmdsm.host.files import file_hash
 from dmdsm.host.model.build import build_object_model, vertex_materials
 from dmdsm.host.model.export import ply_bytes
-from dmdsm.host.model.store import load_object_model, staleness, write_model
+from dmdsm.host.model.store import ModelError, load_object_model, staleness, write_model
 from dmdsm.host.ranging.calibrate import distance_std_mm
 from dmdsm.host.scan.catalogue import connect, record
 from dmdsm.host.scan.scanfile import PHASES, ScanWriter
@@ -28,7 +28,8 @@ BAND_MM = (10.0, 30.0)         # the heights scanned (object frame z)
 STD_MM = {"oa": 0.06, "us": 0.15}  # the distances' noise (the paper's figures)
 
 
-def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fly=False):
+def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fly=False,
+                  x_step_mm=0.7):
     """A finished scan of a cylinder of RADIUS_MM about the table's axis: per table angle and
     level a line across it, both modalities' distances with the noise their SNR gives."""
     setup = true_setup(SensorModel())
@@ -44,7 +45,7 @@ def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fl
     snr = {m: snr_for(setup, m, STD_MM[m]) for m in ("oa", "us")}
     levels = np.asarray(levels_mm if levels_mm is not None else
                         np.arange(BAND_MM[0], BAND_MM[1] + 1e-9, 2.0))
-    x = np.arange(-20.0, 20.01, 0.7)
+    x = np.arange(-20.0, 20.01, x_step_mm)
     theta, z, x = (a.ravel() for a in np.meshgrid(np.arange(0.0, 360.0, step_deg), levels, x,
                                                   indexing="ij"))
     k = len(x)
@@ -206,6 +207,19 @@ def test_bad_input_is_one_line(built, tmp_path, capsys, argv, says):
     err = capsys.readouterr().err
     assert code == 2 and says in err and len(err.strip().splitlines()) == 1
     assert "Traceback" not in err
+
+
+def test_a_scan_of_scattered_points_is_refused_in_one_line_that_says_so(tmp_path):
+    """One dense line (a scan that caught the object once) and one scan of points 8 mm apart
+    (one that mostly missed it): the dense line sets the neighbourhood, the scattered points
+    are outliers by the neighbour rule, and the build says how many are left and what to do
+    (not, as it did, that only so many points are finite)."""
+    (tmp_path / "scans").mkdir()
+    cylinder_scan(tmp_path, "can-a", step_deg=360.0, levels_mm=[20.0], x_step_mm=1.0)
+    cylinder_scan(tmp_path, "can-b", step_deg=30.0, levels_mm=[10.0, 30.0], x_step_mm=8.0)
+    with pytest.raises(ModelError, match=r"has 3[0-9] points left of 185 once the outliers "
+                                         r"are out: too few for a surface; scan it"):
+        build_object_model(tmp_path, "can", modalities=("oa",))
 
 
 def test_a_scan_files_joint_covariance_is_used_only_if_it_is_one():

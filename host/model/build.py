@@ -30,6 +30,7 @@ from .surface import build_surface
 MATERIAL_RADIUS_MM = 3.0   # waveforms within this of a vertex give it their probabilities
 STAGE_STD_MM = 0.005       # the stage's repeatability per axis (Marlin's step: 1/80 mm)
 TABLE_STD_DEG = 0.01       # the turntable's angle repeatability
+MIN_POINTS = 50            # points a surface needs (after the outliers are out)
 Progress = Callable[[str], None]
 
 
@@ -183,7 +184,7 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
     pts = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     keep = np.isin(pts["mod"], [MODS.index(m) for m in modalities])
     pts = {k: v[keep] for k, v in pts.items()}
-    if len(pts["P"]) < 50:
+    if len(pts["P"]) < MIN_POINTS:
         raise ModelError(f"object {object_id!r} has {len(pts['P'])} points in its scans: too "
                          f"few for a surface; scan it (more levels or angles) first")
     good, why = outliers(pts["P"], pts["cov"])
@@ -191,6 +192,10 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
     say(f"{int(bad.sum())} of {len(bad)} points are outliers ("
         + ", ".join(f"{REASONS[int(c)]} {int((why == c).sum())}" for c in np.unique(why[bad]))
         + ")" if bad.any() else "no outliers")
+    if good.sum() < MIN_POINTS:
+        raise ModelError(f"object {object_id!r} has {int(good.sum())} points left of "
+                         f"{len(good)} once the outliers are out: too few for a surface; scan "
+                         f"it (more levels or angles) first")
     surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
                          spacing_mm=spacing_mm, cov_common=pts["common"][good],
                          cov_repeat=pts["repeat"][good], group=pts["scan"][good])

@@ -24,9 +24,10 @@ and a waveform averaged over a moving spot averages the surface's own scatter do
 the common (calibration) part, which a local fit cannot average down, plus
 the travel smear once however many scans repeat it, plus a bias term where the points nearest
 the vertex misfit the fit (a sharp edge it rounds). Where the points near a vertex come from
-two faces (their normals spread by half of edges.MIN_ANGLE_DEG, or that misfit), two planes
-replace the quadratic if they fit their points far better (EDGE_BETTER): edges.py; the block's
-vertical edges then stay sharp instead of rounded by 0.2-0.4 mm.
+two faces (their normals spread by half of edges.MIN_ANGLE_DEG, or that misfit) and the
+quadratic misfits them all (EDGE_MISFIT), two planes replace the quadratic if they fit their
+points far better (EDGE_BETTER) and move the vertex less than a quarter of the radius from it:
+edges.py; the block's vertical edges then stay sharp instead of rounded by 0.2-0.4 mm.
 Vertices with too few points near them, with all their points on one side (a hole's rim),
 or whose fitted plane does not face the beams that measured its points (a lone row: its
 points lie in the plane of their beams, which PCA takes for the surface, edge-on to it, with
@@ -60,7 +61,10 @@ LOCAL_SIGNIFICANT = 3.0  # the nearest points' misfit (an edge the fit rounds): 
 MAD_EFFICIENCY = 0.37    # the MAD's efficiency: its chi^2 has the std of 0.37 n points' one
 MIN_FACING = 0.25        # a vertex's fitted plane must face the beams that measured it: mean
 # |cos| of the angle between them at least this (75 deg); a lone row's plane is edge-on to them
-EDGE_BETTER = 0.5       # two planes replace the quadratic where their chi^2 is below this share
+EDGE_MISFIT = 3.0       # two planes are tried where the quadratic's chi^2 exceeds 1 by this many
+# of its stds (it demonstrably misfits: on a noisy smooth surface a split can fit noise)...
+EDGE_BETTER = 0.5       # ... and replace it where their chi^2 is below this share of its, and
+# they move the vertex less than a quarter of the radius from where the quadratic put it
 SCATTER_VERTICES = 64    # the scatter factor's neighbourhood: this many supported vertices...
 SCATTER_RADIUS = 2.0     # ... within this many support radii
 
@@ -338,7 +342,9 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         if len(e):
             k = edge_fit(V[sl][sel][e], P[ii[e]], valid[sel][e], own[ii[e]], normals_p[ii[e]],
                          pvar[ii[e]], h, nn[e])
-            take = k["ok"] & (k["chi2"] < EDGE_BETTER * r["chi2"][e]) & (np.abs(k["t"]) < R / 2)
+            rounded = r["chi2"][e] > 1 + EDGE_MISFIT * np.sqrt(2 / np.maximum(r["n_eff"][e] - 6, 1))
+            take = (k["ok"] & rounded & (k["chi2"] < EDGE_BETTER * r["chi2"][e])
+                    & (np.abs(k["t"]) < R / 2) & (np.abs(k["t"] - r["offset"][e]) < R / 4))
             e, n_edges = e[take], n_edges + int(take.sum())
             move[e], fit_var[e], nrm_v[e] = k["t"][take], k["var"][take], k["normal"][take]
             chi2[e], n_eff[e], bias2[e] = k["chi2"][take], k["n_eff"][take], 0.0

@@ -21,7 +21,8 @@ def test_an_error_mid_burst_reads_the_rest_from_mid_line():
     burst = numbered(1, "G90") + numbered(2, "G91", good=False) + numbered(3, "G90") + \
         numbered(4, "G91")
     m.receive(burst.encode(), 0.001)
-    out = m.step(0.002).decode().splitlines()
+    # a line error's Resend and ok leave after its drain (40 us for the second one's)
+    out = (m.step(0.002) + m.step(0.003)).decode().splitlines()
     errors = [x for x in out if x.startswith("Error:")]
     assert errors[0] == "Error:checksum mismatch, Last Line: 1"
     assert all(x == "Resend: 2" for x in out if x.startswith("Resend"))
@@ -30,6 +31,24 @@ def test_an_error_mid_burst_reads_the_rest_from_mid_line():
     assert [n for n, _ in m.executed if n is not None] == [1]
     tails = [cmd for n, cmd in m.executed if n is None]
     assert tails and all(f'echo:Unknown command: "{cmd}"' in out for cmd in tails)
+
+
+def test_a_line_errors_ok_leaves_after_its_drain_so_the_resend_is_never_lost():
+    """A line error's drain drops what arrives while the error goes out; its Resend and ok
+    come after the drain, so a host's resend sent on that ok is read whole - however soon
+    the emulator is stepped (a loaded machine once stepped it within the drain, the resend
+    was dropped and the host waited in vain)."""
+    m = MarlinEmulator()
+    m.step(0.0)
+    m.receive(numbered(1, "G90").encode() + numbered(2, "M117 " + "x" * 120).encode(), 0.001)
+    t, out = 0.001, []
+    while not any(x.startswith("ok") for x in out[1:]):
+        t += 1e-6  # stepped every microsecond of simulated time
+        out += m.step(t).decode().splitlines()
+    assert out[-3].startswith("Error:No Checksum") and out[-2:] == ["Resend: 2", "ok"]
+    m.receive(numbered(2, "G90").encode(), t)  # at once, as soon as the ok came
+    out = m.step(t + 0.001).decode().splitlines()
+    assert out[-1].startswith("ok N2") and [n for n, _ in m.executed] == [1, 2]
 
 
 def test_a_quiet_line_after_the_error_is_read_whole():

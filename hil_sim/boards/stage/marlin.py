@@ -107,6 +107,7 @@ class MarlinEmulator(GcodeMixin):
         self.emergency = bytearray()
         self.discard = 0           # received bytes a line error's drain still takes
         self.discard_until = 0.0
+        self.held_from: int | None = None  # out's lines from here wait for the drain's end
         self.executed: list[tuple[int | None, str]] = []  # ground truth: (N, command) in order
         self.now = now
         self.booting_until = now + boot_s
@@ -164,10 +165,21 @@ class MarlinEmulator(GcodeMixin):
         self._run(now)
 
     def step(self, now: float) -> bytes:
-        """Run the main loop up to `now` (s); returns the bytes the board sends."""
+        """Run the main loop up to `now` (s); returns the bytes the board sends. A line
+        error's Resend and ok leave only once its drain is over (the error line blocks the
+        TX until it is out, and the flush comes before them), so a host's answer to them
+        always arrives after the drain, as on the board."""
         self._run(now)
-        data = "".join(line + "\n" for line in self.out).encode()
-        self.out.clear()
+        send = self.out
+        if self.held_from is not None:
+            if self.now <= self.discard_until:
+                send, self.out = self.out[:self.held_from], self.out[self.held_from:]
+                self.held_from = 0
+            else:
+                self.held_from = None
+        data = "".join(line + "\n" for line in send).encode()
+        if send is self.out:
+            self.out = []
         return data
 
     def _run(self, now: float) -> None:
@@ -268,6 +280,7 @@ class MarlinEmulator(GcodeMixin):
         self.line.clear()
         self.discard = max(0, len(error) + 1 - TX_BUFFER_BYTES)
         self.discard_until = self.now + self.discard * BYTE_S
+        self.held_from = len(self.out) if self.discard else None  # the latest error's
         self.out += [f"Resend: {self.last_n + 1}", "ok"]
 
     def _accept(self, text: str) -> None:

@@ -52,7 +52,6 @@ def edge_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     Returns ok (m,) where the split holds; t (m,) mm, the move onto the edge's surface; normal
     (m, 3), the face it lands on; var (m,) mm^2, t's variance from that face's fit; chi2 (m,)
     the two fits' weighted reduced chi-square over their own points; n_eff (m,)."""
-    m = len(x)
     w0 = valid * np.exp(-0.5 * ((Q - x[:, None, :]) ** 2).sum(axis=2) / h_mm ** 2)
     second = split_by_normal(normals, w0)
     fits = []
@@ -88,4 +87,4 @@ def edge_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
             ) / np.maximum(sw, 1e-300)
     n_eff = np.where(pick_a, ra["n_eff"], rb["n_eff"])
     return {"ok": ok & np.isfinite(t), "t": np.where(np.isfinite(t), t, 0.0), "normal": normal,
-            "var": var, "chi2": chi2, "n_eff": n_eff, "m": m}
+            "var": var, "chi2": chi2, "n_eff": n_eff}

@@ -319,8 +319,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
             continue
         ii = np.where(valid[sel], idx[sel], 0)
         r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel],
-                      curvature_prior=CURVATURE_PRIOR,
-                      point_var=pvar[ii])
+                      curvature_prior=CURVATURE_PRIOR, point_var=pvar[ii])
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
@@ -338,12 +337,13 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         move, fit_var, n_eff = r["offset"].copy(), r["var"].copy(), r["n_eff"].copy()
         nrm_v, chi2, chi2_fit = r["normal"].copy(), r["chi2_robust"].copy(), r["chi2"].copy()
         spread = np.where(valid[sel], np.einsum("mki,mi->mk", normals_p[ii], nn), 1.0).min(1)
-        e = np.flatnonzero(good & ((bias2 > 0) | (spread < np.cos(np.radians(MIN_ANGLE_DEG / 2)))))
+        rounded = r["chi2"] > 1 + EDGE_MISFIT * np.sqrt(2 / np.maximum(r["n_eff"] - 6, 1))
+        two_faces = (bias2 > 0) | (spread < np.cos(np.radians(MIN_ANGLE_DEG / 2)))
+        e = np.flatnonzero(good & rounded & two_faces)  # only these get the two-plane fits
         if len(e):
             k = edge_fit(V[sl][sel][e], P[ii[e]], valid[sel][e], own[ii[e]], normals_p[ii[e]],
                          pvar[ii[e]], h, nn[e])
-            rounded = r["chi2"][e] > 1 + EDGE_MISFIT * np.sqrt(2 / np.maximum(r["n_eff"][e] - 6, 1))
-            take = (k["ok"] & rounded & (k["chi2"] < EDGE_BETTER * r["chi2"][e])
+            take = (k["ok"] & (k["chi2"] < EDGE_BETTER * r["chi2"][e])
                     & (np.abs(k["t"]) < R / 2) & (np.abs(k["t"] - r["offset"][e]) < R / 4))
             e, n_edges = e[take], n_edges + int(take.sum())
             move[e], fit_var[e], nrm_v[e] = k["t"][take], k["var"][take], k["normal"][take]

@@ -170,17 +170,13 @@ class MarlinEmulator(GcodeMixin):
         TX until it is out, and the flush comes before them), so a host's answer to them
         always arrives after the drain, as on the board."""
         self._run(now)
-        send = self.out
+        if self.held_from is not None and self.now > self.discard_until:
+            self.held_from = None
+        n = len(self.out) if self.held_from is None else self.held_from
+        send, self.out = self.out[:n], self.out[n:]
         if self.held_from is not None:
-            if self.now <= self.discard_until:
-                send, self.out = self.out[:self.held_from], self.out[self.held_from:]
-                self.held_from = 0
-            else:
-                self.held_from = None
-        data = "".join(line + "\n" for line in send).encode()
-        if send is self.out:
-            self.out = []
-        return data
+            self.held_from = 0
+        return "".join(line + "\n" for line in send).encode()
 
     def _run(self, now: float) -> None:
         target = max(self.now, now)

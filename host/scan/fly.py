@@ -1,7 +1,8 @@
 """Fly scanning's pure part: line speed, ramps, Marlin's trapezoid in time, and shot placement.
 
 A fly line is one G1 along X from rest to rest. Marlin runs it as a trapezoid in step rates
-that starts and ends at MINIMAL_STEP_RATE (32 steps/s on the AVR), not at zero. The sensor board
+that starts and ends at the block's minimum planner speed, sqrt(a / 2 * steps_per_mm) steps/s
+(the average rate over one step from rest; 118 steps/s on X), not at zero. The sensor board
 time-stamps the X STEP pulses (first, last, count: the motion_sync message) in the clock of
 its waveforms, so each shot is placed by `LineMotion.x_at` on the model anchored at the first
 step, with the time scaled so the model's last step falls on the measured one (Marlin's
@@ -62,8 +63,8 @@ class LineMotion:
     def _rates(self) -> tuple[float, float, float, float]:
         """(start rate, peak rate, acceleration in steps/s^2, steps to the peak)."""
         k = self.steps_per_mm
-        r0 = MINIMAL_STEP_RATE
         A = self.a * k
+        r0 = max(min(math.sqrt(0.5 * A), self.v * k), MINIMAL_STEP_RATE)  # planner.cpp
         peak = max(self.v * k, r0)
         d = (peak * peak - r0 * r0) / (2 * A)
         if 2 * d > self.n:  # a triangle: never reaches v

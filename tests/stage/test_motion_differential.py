@@ -12,8 +12,6 @@ import numpy as np
 import pytest
 from differential import HOME, Group, Stage, Tolerance, motion
 
-from dmdsm.sim.boards.stage.motion import MINIMUM_PLANNER_SPEED
-
 ELF = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
 
 
@@ -49,17 +47,18 @@ def slow_acceleration(planner: object) -> None:
 def one_block_lookahead(planner: object) -> None:
     """Each block planned against the next one only (Marlin's reverse pass runs over the
     whole queue): a block may not be faster at its end than the next can stop from."""
-    def replan() -> None:
+    def replan(safe_exit_sqr: float) -> None:
         todo = [m for m in planner.queue if m.t0 is None]
         running = [m for m in planner.queue if m.t0 is not None]
         prev_exit = running[-1].exit if running else 0.0
         for i, m in enumerate(todo):
             nxt = todo[i + 1] if i + 1 < len(todo) else None
-            m.exit = MINIMUM_PLANNER_SPEED if nxt is None else min(
-                nxt.max_entry, math.sqrt(MINIMUM_PLANNER_SPEED ** 2 + 2 * nxt.a * nxt.length))
+            m.exit = m.min_speed if nxt is None else min(
+                nxt.max_entry, math.sqrt(nxt.min_speed ** 2 + 2 * nxt.a * nxt.length))
             m.entry = min(m.max_entry, math.sqrt(m.exit ** 2 + 2 * m.a * m.length), prev_exit)
             m.exit = min(m.exit, math.sqrt(m.entry ** 2 + 2 * m.a * m.length))
             prev_exit = m.exit
+            m.initial_rate = None
             m.profile()
     planner._replan = replan
 

@@ -2,8 +2,12 @@
 
 What a host can observe of a real Marlin's motion is modelled as Marlin 2.1 does it
 (planner.cpp, stepper.cpp): junction deviation and the look-ahead passes set each block's
-entry and exit speed; a block runs a trapezoid in step rates that starts and ends at no less
-than MINIMAL_STEP_RATE; the first block after the queue ran dry waits up to
+entry and exit speed, never below the block's own minimum planner speed (the average speed
+over one step from rest at its acceleration, sqrt(a / 2 / steps_per_mm)) nor a step rate below
+MINIMAL_STEP_RATE; a block runs a trapezoid in step rates; the stepper takes a block's first
+step one period of its initial rate after loading it and loads the next one at its last step;
+a block queued while the only other one is running starts at that one's final step rate
+(the running block is never re-planned); the first block after the queue ran dry waits up to
 BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; a short block queued while few
 wait is slowed (SLOWDOWN, min_segment_time_us), and a shallow corner after a sub-millimetre
 block is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the running block
@@ -27,7 +31,6 @@ import numpy as np
 from dmdsm.marlin_patch import MINIMAL_STEP_RATE, MachineLimits
 
 BLOCK_DELAY_FOR_1ST_MOVE = 0.1  # s: hold of the first block after the queue ran dry
-MINIMUM_PLANNER_SPEED = 0.05    # mm/s: exit speed of the last block
 MIN_STEPS_PER_SEGMENT = 6       # Configuration_adv.h: a block whose largest axis step count is
 # below this is not queued, and the planner's position stays where it was (planner.cpp)
 HISTORY = 512                   # finished blocks kept for position_at() and step_edges():
@@ -61,18 +64,34 @@ class Move:
     added: float = 0.0           # when it was queued (s)
     after_idle: bool = False     # queued while the planner was empty (first-move delay)
     max_entry: float = 0.0       # junction limit (mm/s)
-    entry: float = 0.0           # planned entry and exit speed (mm/s)
+    entry: float = 0.0           # the trapezoid's entry and exit speed (mm/s)
     exit: float = 0.0
+    entry_sqr: float = 0.0       # Marlin's entry_speed_sqr, max_ and min_entry_speed_sqr
+    max_entry_sqr: float = 0.0   # ((mm/s)^2): the look-ahead's state between two blocks
+    min_entry_sqr: float = 0.0
+    recalculate: bool = True     # Marlin's flag.recalculate: its trapezoid is to be redone
+    calculated: bool = False     # a trapezoid was computed (Marlin: initial_rate != 0)
     t0: float | None = None      # when its first step was taken (None: still queued)
     dropped: bool = False        # too few steps: never queued (MIN_STEPS_PER_SEGMENT)
     cut: float = math.inf        # a quick stop ended it here (s)
     slip: np.ndarray | None = None  # the planner's slip when it was queued (steps)
+    initial_rate: float | None = None  # steps/s kept from an earlier trapezoid (Marlin's
+    # entry factor 0), or the running block's final rate, whatever the axes; None: from entry
     _edges: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.delta = self.target - self.start
         self.n = int(np.max(np.abs(self.delta))) if self.delta.size else 0
         self.profile()
+
+    @property
+    def min_speed(self) -> float:
+        """Marlin's minimum_planner_speed (mm/s, deg/s): the average speed over one step from
+        rest at the block's acceleration, sqrt(a / 2 / steps_per_mm), at most its nominal
+        speed; no entry or exit speed is lower (planner.cpp)."""
+        if self.n == 0 or self.length <= 0:
+            return 0.0
+        return min(math.sqrt(0.5 * self.a * self.length / self.n), self.v)
 
     # --------------------------------------------------------------- trapezoid in steps
     def profile(self) -> None:
@@ -81,11 +100,13 @@ class Move:
         if n == 0 or self.length <= 0:
             self.r0 = self.r1 = self.r2 = 1.0
             self.A = 1.0
+            self.lead = 0.0
             self.d_acc = self.d_dec = self.d_cruise = self._duration = 0.0
             return
         k = n / self.length  # steps per mm along the move
         rn = max(self.v * k, MINIMAL_STEP_RATE)
-        r0 = min(max(self.entry * k, MINIMAL_STEP_RATE), rn)
+        r0 = self.initial_rate if self.initial_rate is not None else self.entry * k
+        r0 = min(max(r0, MINIMAL_STEP_RATE), rn)
         r2 = min(max(self.exit * k, MINIMAL_STEP_RATE), rn)
         A = self.a * k
         d_acc = (rn * rn - r0 * r0) / (2 * A)
@@ -104,7 +125,22 @@ class Move:
         self.r0, self.r1, self.r2, self.A = r0, rn, r2, A
         self.d_acc, self.d_dec = d_acc, d_dec
         self.d_cruise = max(n - d_acc - d_dec, 0.0)
-        self._duration = self.t_acc + self.t_cruise + self.t_dec
+        self.lead = 1.0 / r0  # the first step comes one period of the initial rate in
+        # (stepper.cpp), the others as the continuous profile places them, the last at the end
+        self._duration = self.lead + float(self.time_of(n - 1.0))
+
+    def trapezoid(self, entry: float, exit: float) -> None:
+        """Marlin's calculate_trapezoid_for_block: the profile from entry to exit (mm/s); an
+        entry of 0 keeps the initial rate the block had."""
+        if entry:
+            self.initial_rate = None
+            self.entry = entry
+        elif self.initial_rate is None:
+            self.initial_rate = self.r0 if self.n else MINIMAL_STEP_RATE
+        self.exit = exit
+        self.recalculate = False
+        self.calculated = True
+        self.profile()
 
     @property
     def t_acc(self) -> float:
@@ -127,8 +163,9 @@ class Move:
         return 0.0 if self.n == 0 else self._duration
 
     def s_at(self, t: np.ndarray | float) -> np.ndarray:
-        """Dominant-axis steps taken t seconds after the first (continuous, 0..n)."""
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        """Dominant-axis steps of the continuous profile t seconds after the first step
+        (0..n; the first step is taken at 0, step k at k - 1)."""
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.t_acc + self.t_cruise + self.t_dec)
         ta, tc = self.t_acc, self.t_cruise
         acc = self.r0 * t + 0.5 * self.A * t * t
         cru = self.d_acc + self.r1 * (t - ta)
@@ -149,17 +186,17 @@ class Move:
         return np.where(s < self.d_acc, acc, np.where(s < self.d_acc + self.d_cruise, cru, dec))
 
     def steps_after(self, t: float) -> np.ndarray:
-        """Signed steps of every axis t seconds after the first step (Bresenham)."""
-        if self.n == 0 or t < 0:
+        """Signed steps of every axis t seconds after the block was loaded (Bresenham)."""
+        if self.n == 0 or t < self.lead:
             return np.zeros_like(self.delta)
-        k = min(self.n, int(math.floor(float(self.s_at(t)))) + 1)
+        k = min(self.n, int(math.floor(float(self.s_at(t - self.lead)))) + 1)
         if t >= self.duration:
             k = self.n
         moved = (2 * k * np.abs(self.delta) + self.n) // (2 * self.n)
         return np.sign(self.delta) * moved
 
     def edges(self, axis: int) -> np.ndarray:
-        """Times (s after the first step) of the STEP pulses of one axis."""
+        """Times (s after the block was loaded) of the STEP pulses of one axis."""
         if axis not in self._edges:
             d = int(abs(self.delta[axis]))
             if d == 0 or self.n == 0:
@@ -168,7 +205,7 @@ class Move:
                 k = np.arange(1, self.n + 1, dtype=np.int64)
                 m = (2 * k * d + self.n) // (2 * self.n)
                 steps_at = k[np.diff(np.concatenate(([0], m))) > 0]
-                self._edges[axis] = self.time_of(steps_at - 1.0)
+                self._edges[axis] = self.lead + self.time_of(steps_at - 1.0)
         return self._edges[axis]
 
     @property
@@ -252,10 +289,13 @@ class Planner:
             move.dropped = True  # Marlin's _populate_block bails out before the position
             return move          # update: the steps stay owed to the next move
         self.pos = np.array(target_steps, dtype=np.int64)
-        prev = self.queue[-1] if self.queue else None
-        move.max_entry = self._junction(prev, move) if prev is not None else 0.0
+        waiting = [m for m in self.queue if m.t0 is None]
+        prev = waiting[-1] if waiting else None  # Marlin joins only to a block not yet running
+        move.max_entry = self._junction(prev, move) if prev is not None else move.min_speed
+        move.max_entry_sqr = move.max_entry ** 2
+        move.entry_sqr = move.min_entry_sqr = move.min_speed ** 2
         self.queue.append(move)
-        self._replan()
+        self._replan(move.min_speed ** 2)
         return move
 
     def _slowdown(self, length: float, feed_mm_s: float) -> float:
@@ -276,7 +316,7 @@ class Planner:
         """Largest speed (mm/s) through the corner between two blocks (junction deviation)."""
         cos_theta = -float(np.dot(prev.unit, move.unit))
         if cos_theta > 0.999999:  # a reversal
-            return MINIMUM_PLANNER_SPEED
+            return move.min_speed
         cos_theta = max(cos_theta, -0.999999)
         ju = move.unit - prev.unit
         norm = float(np.linalg.norm(ju))
@@ -289,26 +329,62 @@ class Planner:
         v2 = a * self.jd * sin_d2 / (1.0 - sin_d2)
         if move.length < 1 and cos_theta < -0.7071067812:  # JD_HANDLE_SMALL_SEGMENTS:
             v2 = min(v2, move.length * a / _acos_minus(cos_theta))  # the arc's curvature
-        return math.sqrt(min(v2, move.v ** 2, prev.v ** 2))
+        return max(math.sqrt(min(v2, move.v ** 2, prev.v ** 2)), move.min_speed)
 
-    def _replan(self) -> None:
-        """Look-ahead: the reverse and forward passes over the blocks not yet running."""
+    def _replan(self, safe_exit_sqr: float) -> None:
+        """Marlin's recalculate(): the reverse pass from the newest block back, which never
+        touches the first block not yet running and stops at the first block whose entry it
+        cannot raise; then the forward kernel and the trapezoids of the flagged blocks (and
+        of the one before them, whose exit changed) from the running block on."""
         todo = [m for m in self.queue if m.t0 is None]
-        if not todo:
-            return
-        nxt = MINIMUM_PLANNER_SPEED
-        for m in reversed(todo):  # reverse pass: each block must be able to stop in time
-            m.exit = nxt
-            m.entry = min(m.max_entry, math.sqrt(nxt * nxt + 2 * m.a * m.length))
-            nxt = m.entry
-        running = [m for m in self.queue if m.t0 is not None]
-        prev_exit = running[-1].exit if running else 0.0
-        for m in todo:  # forward pass: and reach its entry speed from the previous one
-            m.entry = min(m.entry, prev_exit)
-            m.exit = min(m.exit, math.sqrt(m.entry ** 2 + 2 * m.a * m.length))
-            prev_exit = m.exit
-        for m in todo:
-            m.profile()
+        nxt: Move | None = None
+        for m in reversed(todo[1:]):  # reverse_pass
+            if not self._reverse_kernel(m, nxt, safe_exit_sqr):
+                break
+            nxt = m
+        block: Move | None = None
+        next_entry = 0.0  # mm/s; 0: a trapezoid keeps its initial rate
+        for m in self.queue:  # recalculate_trapezoids
+            if m.recalculate:
+                if block is None:  # the first block after the queue ran dry
+                    m.entry_sqr = m.min_entry_sqr
+                    next_entry = math.sqrt(m.min_entry_sqr)
+                elif block.t0 is not None:  # behind the running block: its final rate
+                    m.entry_sqr = m.min_entry_sqr
+                    if not m.calculated:
+                        m.initial_rate = block.r2
+                else:
+                    if m.entry_sqr != m.min_entry_sqr:
+                        self._forward_kernel(block, m)
+                    entry, next_entry = next_entry, math.sqrt(m.entry_sqr)
+                    block.trapezoid(entry, next_entry)
+            block = m
+        if block is not None and block.recalculate and block.t0 is None:
+            block.trapezoid(next_entry, math.sqrt(safe_exit_sqr))
+
+    @staticmethod
+    def _reverse_kernel(m: Move, nxt: Move | None, safe_exit_sqr: float) -> bool:
+        """Raise m's entry to what it can slow down from to the next block's entry (or the
+        safe exit); True if it rose."""
+        if (nxt is None or nxt.recalculate) and m.entry_sqr != m.max_entry_sqr:
+            nes = nxt.entry_sqr if nxt is not None else safe_exit_sqr
+            new = min(nes + 2 * m.a * m.length, m.max_entry_sqr)
+            if m.entry_sqr != new:
+                m.recalculate = True
+                m.entry_sqr = new
+                return True
+        return False
+
+    @staticmethod
+    def _forward_kernel(prev: Move, m: Move) -> None:
+        """Lower m's entry to what prev can reach from its own entry; that becomes m's
+        floor."""
+        if prev.entry_sqr < m.entry_sqr:
+            new = prev.entry_sqr + 2 * prev.a * prev.length
+            if new < m.entry_sqr:
+                new = max(new, m.min_entry_sqr)
+                m.entry_sqr = m.max_entry_sqr = new
+        m.min_entry_sqr = m.entry_sqr
 
     def _start_time(self, m: Move) -> float:
         """When the head block starts (Marlin holds a lone block after idle)."""

@@ -4,7 +4,7 @@ executor's own tests: tests/test_fly_executor.py)."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dmdsm.host.links.safety import UnsafeMove
@@ -34,6 +34,7 @@ def emulated(x0: float, x1: float, v: float):
 @settings(max_examples=60, deadline=None)
 @given(x0=st.floats(0, 200), length=st.floats(2, 200), v=st.floats(5, 200),
        back=st.booleans(), frac=st.lists(st.floats(0, 1), min_size=5, max_size=20))
+@example(0.0, 50.0, 5.0, False, [0.0, 1.0])  # the last step, at the block's end, still running
 def test_the_host_model_puts_each_instant_within_a_step_of_the_emulated_marlin(x0, length, v,
                                                                              back, frac):
     x1 = x0 - length if back else x0 + length

@@ -11,6 +11,7 @@ generator (contextlib.closing, or leave the loop by an exception) to disarm the 
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from ..classify.live import RADIUS_MM
 from ..links.sensor import CLOCK_SPACING_S, ClockSync, SensorClient, SensorError, fit_line
@@ -34,7 +36,8 @@ RESYNC_S = 0.1         # a clock_sync exchange this often while the stream runs 
 KEEP_EXCHANGES = 400   # the last exchanges kept for the fit (the fly scan keeps as many)
 TAKE_WAIT_S = 0.05     # how long one wait for the next waveforms lasts (s)
 MIN_FIT_EXCHANGES = 8  # a clock fit uses at least this many exchanges
-CLIP_SIGMA = 3.0       # an exchange this many robust sigmas off the clock line is left out
+CLIP_SIGMA = 3.0       # an exchange this many sigmas of the others off the clock line is left out,
+OUTLIER_ALPHA = 0.05   # or more where a good one would pass that with this probability
 IDLE_RTT_PCT = 25      # the idle round trip: this percentile of those before the arm
 
 
@@ -106,13 +109,46 @@ def split_var_s2(half_rtt_s: float) -> float:
     return half_rtt_s ** 2 / 3.0
 
 
+def _off_line(xr: np.ndarray, yr: np.ndarray, keep: np.ndarray, clip: float
+              ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The least-squares line of host s on ticks through `keep`: every exchange's host s
+    off it, the kept ones' externally studentized residuals (each against the line and the
+    scatter of the others: the deleted-residual identities, no refit) and how many of those
+    an exchange may lie off it: clip, or the Student t quantile a good one passes with
+    probability OUTLIER_ALPHA among them all if larger (Bonferroni)."""
+    xk, yk = xr[keep], yr[keep]
+    m = len(xk)
+    ym = float(yk.mean())
+    syy = max(float(np.sum(np.square(yk - ym))), 1e-300)
+    beta = float(np.sum((yk - ym) * (xk - xk.mean()))) / syy
+    r = xk.mean() + beta * (yr - ym) - xr
+    h = 1.0 / m + np.square(yk - ym) / syy  # leverage
+    e = r[keep]
+    sse = float(np.sum(np.square(e)))
+    s2 = np.maximum((sse - e * e / np.maximum(1 - h, 1e-12)) / max(m - 3, 1), 1e-24)
+    t = np.zeros(len(xr))
+    t[keep] = np.abs(e) / np.sqrt(s2 * np.maximum(1 - h, 1e-12))
+    return r, t, max(clip, _t_limit(m))
+
+
+@functools.lru_cache(maxsize=1024)
+def _t_limit(m: int) -> float:
+    """The Student t quantile (m - 3 degrees of freedom) a good one of m exchanges passes
+    with probability OUTLIER_ALPHA / m on either side."""
+    return float(student_t.ppf(1 - OUTLIER_ALPHA / (2 * m), max(m - 3, 1)))
+
+
 def robust_keep(x: np.ndarray, y: np.ndarray, base: np.ndarray, clip: float = CLIP_SIGMA
                 ) -> np.ndarray:
-    """Which of the (host s, ticks) exchanges in `base` the line goes through: those within
-    `clip` robust sigmas (1.4826 x the median absolute deviation) of a median-slope line, then
-    of the least-squares line through the kept, until none changes (a host or board that
-    stalled between the request's send and its receipt); at least the MIN_FIT_EXCHANGES
-    closest (all of `base` if it has fewer)."""
+    """Which of the (host s, ticks) exchanges in `base` the line goes through: a host or
+    board that stalled between the request's send and its receipt is left out. Rosner's
+    generalized ESD on the least-squares line: the exchange standing out most from the line
+    and the scatter of the others is taken out, again, up to one in eight, and all up to
+    the last one that stood out more than `clip` or the Student t quantile a good one passes
+    with probability OUTLIER_ALPHA among them all stay out; then every exchange within that
+    of the final line is kept; at least the MIN_FIT_EXCHANGES closest (all of `base` if it
+    has fewer). Not a median absolute deviation: a dozen exchanges' MAD can come out at a
+    fifth of their scatter and clip good ones."""
     x0, y0 = float(x[base][0]), float(y[base][0])
     xr, yr = x - x0, y - y0  # well conditioned: host seconds and ticks since the first
     xb, yb = xr[base], yr[base]
@@ -123,19 +159,30 @@ def robust_keep(x: np.ndarray, y: np.ndarray, base: np.ndarray, clip: float = CL
         else 1.0
     r = (yr - float(np.median(yb - rate * xb))) / rate - xr  # host s off the line
     keep = base.copy()
-    for _ in range(8):
-        rk = r[keep]
-        sigma = max(1.4826 * float(np.median(np.abs(rk - np.median(rk)))), 1e-6)
-        new = base & (np.abs(r) <= clip * sigma)
-        if new.sum() < MIN_FIT_EXCHANGES:  # the closest
-            close = np.sort(np.abs(r[base]))[:MIN_FIT_EXCHANGES]
-            new = base & (np.abs(r) <= close[-1])
-        if np.array_equal(new, keep):
-            return keep
-        keep = new
-        sync = fit_line(xr[keep], yr[keep], 0.0)
-        r = np.asarray(sync.to_host_s(yr)) - xr
-    return keep
+    removed, out = [], 0
+    nb = int(base.sum())
+    for k in range(min(max(nb // 8, 4), nb - MIN_FIT_EXCHANGES)):  # up to 1 in 8 stalled
+        _, t, limit = _off_line(xr, yr, keep, clip)  # Rosner's generalized ESD: take out
+        worst = int(np.argmax(t))  # the one standing out most, again and again, and keep
+        if k == 0 and t[worst] <= limit:  # out all up to the last that stood out beyond
+            break                         # the limit (a few stalls mask each other); none
+        keep[worst] = False               # at the first: none stalled
+        removed.append(worst)
+        if t[worst] > limit:
+            out = k + 1
+    keep = base.copy()
+    keep[removed[:out]] = False
+    if keep.sum() >= 3:
+        r, _, limit = _off_line(xr, yr, keep, clip)
+        m = int(keep.sum())
+        scale = max(float(np.sqrt(np.sum(np.square(r[keep])) / (m - 2))), 1e-9)
+    else:
+        scale, limit = max(float(np.std(r[base])), 1e-9), clip
+    final = base & (np.abs(r) <= limit * scale)
+    if final.sum() < min(MIN_FIT_EXCHANGES, int(base.sum())):  # the closest
+        close = np.sort(np.abs(r[base]))[:MIN_FIT_EXCHANGES]
+        final = base & (np.abs(r) <= close[-1])
+    return final
 
 
 def clock_fit(before: list[tuple[float, float, float]] | np.ndarray,

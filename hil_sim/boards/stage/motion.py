@@ -444,21 +444,21 @@ class Planner:
         return self.steps / self.spu
 
     def _covering(self, t: float) -> Move | None:
+        """The last block that started at or before t (s): the one running then, or the
+        one whose end the carriage stood at."""
         for m in reversed(self.history):  # newest first: blocks run one after another
-            if m.t0 is None:
-                continue
-            if m.t0 <= t < m.end:
+            if m.t0 is not None and m.t0 <= t:
                 return m
-            if m.end <= t:  # every older block ended before this one
-                break
         return None
 
     def position_at(self, t: float) -> np.ndarray:
-        """Where the carriage was at time t (s), at most HISTORY blocks back (mm, deg)."""
+        """Where the carriage was at time t (s), at most HISTORY blocks back (mm, deg); at
+        a block's last step (its end) that step is taken."""
         m = self._covering(t)
-        if m is None:
-            return self.position()
-        return (m.start + m.steps_after(t - m.t0) - m.slip) / self.spu
+        if m is None or (t >= m.end and m is self.history[-1]
+                         and all(q is not m for q in self.queue)):
+            return self.position()  # after the last block: where it is (homing sets that)
+        return (m.start + m.steps_after(min(t, m.end) - m.t0) - m.slip) / self.spu
 
     def step_edges(self, axis: int, t_from: float, t_to: float) -> np.ndarray:
         """Times (s) of the STEP pulses of `axis` in (t_from, t_to], in order."""

@@ -11,9 +11,15 @@ import trimesh
 
 from dmdsm.host.entry import main
 from dmdsm.host.files import file_hash
-from dmdsm.host.model.build import build_object_model, vertex_materials
+from dmdsm.host.model.build import build_object_model, model_verdict, vertex_materials
 from dmdsm.host.model.export import ply_bytes
-from dmdsm.host.model.store import ModelError, load_object_model, staleness, write_model
+from dmdsm.host.model.store import (
+    ModelError,
+    ObjectModel,
+    load_object_model,
+    staleness,
+    write_model,
+)
 from dmdsm.host.ranging.calibrate import distance_std_mm
 from dmdsm.host.scan.catalogue import connect, record
 from dmdsm.host.scan.scanfile import PHASES, ScanWriter
@@ -161,6 +167,20 @@ def test_a_vertex_takes_its_material_from_clean_waveforms_before_smeared_ones():
     assert np.allclose(out[2], [0.2, 0.8])  # nothing clean within 8 mm: the smeared one
     plain = vertex_materials(vertices, places, prob)  # no smear known: all within 3 mm
     assert plain[0][1] > 0.8
+
+
+def test_the_objects_material_is_its_supported_vertices_not_every_waveform():
+    """A campaign's verdict comes from the model (its vertices' materials from the clean
+    waveforms) when it has them: unsupported vertices and ones with no waveform near do not
+    count; a model without materials gives none (the scan's waveforms decide then)."""
+    m = ObjectModel("can", classes=["aluminium", "foam"],
+                    supported=np.array([True, True, True, False]),
+                    material_prob=np.array([[0.9, 0.1], [0.8, 0.2], [np.nan, np.nan],
+                                            [0.0, 1.0]], np.float32))
+    v = model_verdict(m)
+    assert v["material"] == "aluminium" and v["vertices"] == 2
+    assert v["confidence"] == pytest.approx(0.85)
+    assert model_verdict(ObjectModel("can", supported=np.ones(3, bool))) is None
 
 
 def test_a_changed_scan_makes_the_model_stale_and_a_new_scan_too(tmp_path):

@@ -273,7 +273,7 @@ class Run:
             self.fill_model(row, model)
             row.status = "done before"
             try:
-                self.classify(row, obj, finished.path)
+                self.classify(row, obj, finished.path, model)
             except ClassifyError as e:
                 row.reason = one_line(f"classify: {e}", 300)
             self.say(f"{name}: done before (scan {finished.scan_id}, model "
@@ -298,7 +298,7 @@ class Run:
             except ValueError as e:
                 raise ValueError(f"model: {e}") from None
             self.fill_model(row, model)
-            self.classify(row, obj, Path(row_path(self.args.db, row.scan_id)))
+            self.classify(row, obj, Path(row_path(self.args.db, row.scan_id)), model)
             row.status = "scanned"
         except Stop:
             raise
@@ -425,12 +425,20 @@ class Run:
         row.supported_share = s.get("supported_share")
         row.sigma_median_mm = s.get("sigma_median_mm")
 
-    def classify(self, row: Row, obj: CampaignObject, scan_path: Path) -> None:
+    def classify(self, row: Row, obj: CampaignObject, scan_path: Path,
+                 model: Any = None) -> None:
+        """The object's material: its model's, built with this classifier (the supported
+        vertices, each from the clean waveforms near it), else the scan's waveforms'."""
         if self.classifier is None:
             return
         from ..classify.predict import predict_scan
+        from ..model.build import model_verdict
 
-        v = predict_scan(self.classifier, scan_path)
+        v = None
+        if model is not None and model.params.get("classifier") == str(self.classifier_path):
+            v = model_verdict(model)
+        if v is None:
+            v = predict_scan(self.classifier, scan_path)
         row.verdict = {"material": v["material"], "confidence": round(v["confidence"], 3),
                        "right": v["material"].strip().lower() ==
                        obj.material.strip().lower()}

@@ -185,6 +185,24 @@ def vertex_materials(vertices_mm: np.ndarray, places_mm: np.ndarray, prob: np.nd
     return out
 
 
+def model_verdict(model: ObjectModel) -> dict | None:
+    """The object's material from its model: the class of highest mean probability over the
+    supported vertices that have probabilities (each from the clean waveforms near it, so a
+    fly scan's smeared ones do not outvote them), that mean as the confidence; None if the
+    model carries no materials."""
+    p = np.asarray(model.material_prob, float)
+    if p.ndim != 2 or p.shape[1] == 0 or len(p) != len(model.supported):
+        return None
+    sel = np.asarray(model.supported, bool) & np.isfinite(p).all(axis=1)
+    if not sel.any():
+        return None
+    mean = p[sel].mean(axis=0)
+    best = int(mean.argmax())
+    return {"source": "model", "material": str(model.classes[best]),
+            "confidence": float(mean[best]), "vertices": int(sel.sum()),
+            "probabilities": {str(c): float(x) for c, x in zip(model.classes, mean)}}
+
+
 def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None = None,
                        spacing_mm: float = 1.0, modalities: tuple[str, ...] = MODS,
                        progress: Progress | None = None) -> ObjectModel:

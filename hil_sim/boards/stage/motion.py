@@ -3,21 +3,24 @@
 What a host can observe of a real Marlin's motion is modelled as Marlin 2.1 does it
 (planner.cpp, stepper.cpp): junction deviation and the look-ahead passes set each block's
 entry and exit speed, never below the block's own minimum planner speed (the average speed
-over one step from rest at its acceleration, sqrt(a / 2 / steps_per_mm)) nor a step rate below
-MINIMAL_STEP_RATE; a block runs a trapezoid in step rates; the stepper takes a block's first
-step one period of its initial rate after loading it and loads the next one at its last step;
-a block queued while the only other one is running starts at that one's final step rate
-(the running block is never re-planned); the first block after the queue ran dry waits up to
-BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; a short block queued while few
-wait is slowed (SLOWDOWN, min_segment_time_us), and a shallow corner after a sub-millimetre
-block is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the running block
-is never re-planned; the dominant axis steps at the profile's rate and the others follow by
-Bresenham; a move of fewer than MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its
-steps left to the next move (the planner keeps its own position, apart from the steppers'),
-and a re-sync of the planner's position while steps are owed (homing another axis) sets the
-counts there without a step: the counts and where the carriage is then differ (`slip`).
+over one step from rest at its acceleration, sqrt(a / 2 / steps_per_mm)) nor a step rate
+below MINIMAL_STEP_RATE; a block runs a trapezoid in step rates; the stepper takes a block's
+first step one period of its initial rate after loading it and loads the next one at its
+last step; the look-ahead keeps Marlin's state between blocks (the running block and the
+next one to run are never re-planned, the reverse pass stops at the first block whose entry
+it cannot raise), and a block queued while only the running one is left starts at that one's
+final step rate; the first block after the queue ran dry waits up to
+BLOCK_DELAY_FOR_1ST_MOVE unless three blocks are queued; a short block queued while few wait
+is slowed (SLOWDOWN, min_segment_time_us), and a shallow corner after a sub-millimetre block
+is limited by the arc it approximates (JD_HANDLE_SMALL_SEGMENTS); the dominant axis steps at
+the profile's rate and the others follow by Bresenham; a move of fewer than
+MIN_STEPS_PER_SEGMENT steps on every axis is dropped, its steps left to the next move (the
+planner keeps its own position, apart from the steppers'), and a re-sync of the planner's
+position while steps are owed (homing another axis) sets the counts there without a step:
+the counts and where the carriage is then differ (`slip`).
 Positions are in mm (X, Y, Z) and degrees (A); the steppers hold whole steps.
-Not modelled: S-curve acceleration (off in the patch) and the ISR's tick quantisation.
+Not modelled: S-curve acceleration (off in the patch), the ISR's tick quantisation and its
+rate running ahead of the trapezoid (docs/marlin.md).
 """
 
 from __future__ import annotations

@@ -173,11 +173,11 @@ def test_checksum_is_marlins_xor_of_the_bytes_before_the_last_star(body):
 def test_checksum_of_the_reprap_example_and_one_definition_for_host_and_emulator():
     from dmdsm.host.links import stage
     from dmdsm.host.scan import fly
-    from dmdsm.sim.boards.stage import marlin, motion
+    from dmdsm.sim.boards.stage import block, marlin
 
     assert checksum("N3 T0") == 57  # the RepRap G-code page's example line `N3 T0*57`
     assert marlin.checksum is checksum and stage.numbered is numbered
-    assert fly.MINIMAL_STEP_RATE is motion.MINIMAL_STEP_RATE is MINIMAL_STEP_RATE
+    assert fly.MINIMAL_STEP_RATE is block.MINIMAL_STEP_RATE is MINIMAL_STEP_RATE
     limits = load_machine()
     assert (stage.RX_BUFFER, stage.MAX_LINE) == (limits.rx_buffer_size - 1,
                                                  limits.max_cmd_size - 1)

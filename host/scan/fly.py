@@ -38,7 +38,7 @@ class LineMotion:
     """Marlin's rest-to-rest move of one axis: x0 -> x1 (mm) at up to v (mm/s), accel a
     (mm/s^2), steps_per_mm; positions in time since the first STEP pulse (s).
 
-    Its twin is the emulator's planner block `dmdsm.sim.boards.stage.motion.Move` (the whole
+    Its twin is the emulator's planner block `dmdsm.sim.boards.stage.block.Move` (the whole
     planner: junctions, queued blocks); the host may not import the emulator, so the model is
     written twice on purpose, and tests/test_fly_model.py
     (`test_the_host_model_puts_each_instant_within_a_step_of_the_emulated_marlin`) holds the

@@ -77,6 +77,7 @@ def test_split_variance_is_uniform_over_the_half_round_trip():
 
 @given(st.integers(10, 200), st.integers(0, 10_000), st.floats(10.0, 100.0), st.booleans())
 @example(15, 4230, 10.0, False)  # a MAD of the kept ones shrank each pass: 6 good ones out
+@example(13, 517, 10.0, False)  # four steps of the ESD in 13: 3 good ones out with the stall
 def test_robust_keep_leaves_out_a_stalled_exchange(n, seed, size, late):
     rng = np.random.default_rng(seed)
     x = 10.0 + np.arange(n) * 0.1 + rng.normal(0, 5e-4, n)

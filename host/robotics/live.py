@@ -143,7 +143,8 @@ def robust_keep(x: np.ndarray, y: np.ndarray, base: np.ndarray, clip: float = CL
     """Which of the (host s, ticks) exchanges in `base` the line goes through: a host or
     board that stalled between the request's send and its receipt is left out. Rosner's
     generalized ESD on the least-squares line: the exchange standing out most from the line
-    and the scatter of the others is taken out, again, up to one in eight, and all up to
+    and the scatter of the others is taken out, again, up to one in eight (and no more than
+    lie `clip` MADs off a median-slope line, plus two: the steps cost), and all up to
     the last one that stood out more than `clip` or the Student t quantile a good one passes
     with probability OUTLIER_ALPHA among them all stay out; then every exchange within that
     of the final line is kept; at least the MIN_FIT_EXCHANGES closest (all of `base` if it
@@ -161,7 +162,10 @@ def robust_keep(x: np.ndarray, y: np.ndarray, base: np.ndarray, clip: float = CL
     keep = base.copy()
     removed, out = [], 0
     nb = int(base.sum())
-    for k in range(min(max(nb // 8, 4), nb - MIN_FIT_EXCHANGES)):  # up to 1 in 8 stalled
+    rb = r[base]  # the candidates: far off the median-slope line by a MAD (which may be
+    mad = 1.4826 * float(np.median(np.abs(rb - np.median(rb))))  # small: only a bound)
+    cand = int(np.sum(np.abs(rb - np.median(rb)) > clip * mad)) + 2
+    for k in range(min(cand, max(nb // 8, 1), nb - MIN_FIT_EXCHANGES)):  # <= 1 in 8 stalled
         _, t, limit = _off_line(xr, yr, keep, clip)  # Rosner's generalized ESD: take out
         worst = int(np.argmax(t))  # the one standing out most, again and again, and keep
         if k == 0 and t[worst] <= limit:  # out all up to the last that stood out beyond

@@ -32,8 +32,8 @@ MATERIAL_SMEAR_MM = 0.4    # a waveform whose shots' depth changed by more than 
 # period of the 1 MHz OA pulse in air (0.34 mm) over its travel is averaged out of shape: on
 # a fly-scanned soda can 85-91 % of the waveforms below 0.4 mm were right, 50 % at 0.4-0.8
 # and 18 % beyond (the classifier learns standing shots)
-MATERIAL_CLEAN_RADIUS_MM = 8.0  # where no clean waveform is within MATERIAL_RADIUS_MM, the
-# clean ones within this are taken before any smeared one
+MATERIAL_CLEAN_RADIUS_MM = 8.0  # the clean waveforms within this of a vertex give it their
+# probabilities (weighted by distance) before any smeared one within MATERIAL_RADIUS_MM
 STAGE_STD_MM = 0.005       # the stage's repeatability per axis (Marlin's step: 1/80 mm)
 TABLE_STD_DEG = 0.01       # the turntable's angle repeatability
 MIN_POINTS = 50            # points a surface needs (after the outliers are out)
@@ -138,12 +138,15 @@ def row_travel(points: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
     """The travel covariance (k, 3, 3, mm^2) of each row's point in a scan_point_set (the
     OA point's where both are, as waveform_probabilities places them; zero if none)."""
     out = np.zeros((len(rows), 3, 3))
-    where = {int(r): i for i, r in enumerate(rows)}
+    rows = np.asarray(rows, np.int64)
+    if not len(rows):
+        return out
+    slot = np.full(int(max(rows.max(), np.max(points["index"], initial=-1))) + 1, -1)
+    slot[rows] = np.arange(len(rows))
     for m in sorted(set(points["mod"].tolist()), reverse=True):  # US first, OA overwrites
-        for k in np.flatnonzero(points["mod"] == m):
-            i = where.get(int(points["index"][k]))
-            if i is not None:
-                out[i] = points["repeat"][k]
+        k = np.flatnonzero(points["mod"] == m)
+        i = slot[np.asarray(points["index"][k], np.int64)]
+        out[i[i >= 0]] = points["repeat"][k[i >= 0]]
     return out
 
 

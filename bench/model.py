@@ -144,9 +144,7 @@ def main() -> int:
         sim.close()
         try:
             material = SCENES[obj]()[0].material
-            modality = "us" if material in ("glass", "steel") else "oa" \
-                if material == "foam" else "both"
-            plan = replace(plan_for_size(obj, size, round_, material, "auto", modality),
+            plan = replace(plan_for_size(obj, size, round_, material, "auto"),
                            levels_mm=levels)
             plan.validate()
             scan = one_scan(obj, "auto", plan, setup, args.seed, args.speed, z_band,

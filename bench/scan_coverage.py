@@ -361,7 +361,7 @@ def main() -> int:
             print(f"  {mode} ...", file=sys.stderr, flush=True)
             wall0 = time.monotonic()
             try:
-                plan = plan_for_size(obj, size, round_, mode=mode)
+                plan = plan_for_size(obj, size, round_, SCENES[obj]()[0].material, mode)
                 if mode == "auto":
                     plan = replace(plan, levels_mm=levels)
                     plan.validate()

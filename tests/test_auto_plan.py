@@ -6,6 +6,7 @@ follow lines is checked against the outline's keep-out."""
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -154,8 +155,11 @@ def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
     holes[(phi < 20) | (phi > 340), 4] = True
     lines = hole_lines(o, holes, [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N, 45.0,
                        line_s=2.0, budget_s=10.0)
-    assert lines and all(li == 1 for _, li in lines)  # the 20 mm level only
-    a, _ = lines[0]
+    # the row's centre (18 mm) is 1.5 mm from the 20 mm level's beam: the line runs at the
+    # centre's own height, numbered as the 20 mm level
+    assert lines and all(li == 1 and h == pytest.approx(18.0 - 8.0 * V[2], abs=1e-3)
+                         for _, li, h in lines), lines
+    a, _, _ = lines[0]
     # the table turns the +x end to face the sensor (which looks along +y): the end's normal
     # R(a) (1, 0, 0) = (cos a, sin a, 0) must point at it, -y: a = 270 deg, head on
     assert a == 270.0, lines
@@ -163,6 +167,26 @@ def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
                       line_s=2.0, budget_s=1.0) == []  # no time for one line
     assert hole_lines(o, np.zeros_like(holes), [0.0], [20.0], 8.0, V, N, 45.0, 2.0,
                       100.0) == []  # nothing to do
+
+
+def test_a_hole_between_sparse_levels_is_scanned_at_its_own_height_none_beyond_them():
+    """A hole row no plan level's beam meets within half the spacing is scanned again at the
+    height where the beam meets its centre (a line at a level 3 mm off would leave the hole's
+    centre uncovered); a row above the highest level is left as it is, reported."""
+    from dmdsm.host.scan.auto import hole_lines
+
+    o = box_outline()  # rows 4 mm tall: centres 2, 6, ..., 38 mm
+    holes = np.zeros_like(o.closed())
+    holes[:, 1] = True   # 4-8 mm, between the levels 4.5 and 30
+    holes[:, 9] = True   # 36-40 mm, above the highest level
+    lines = hole_lines(o, holes, [0.0, 180.0], [4.5, 30.0], 8.0, V, N, 45.0,
+                       line_s=2.0, budget_s=100.0)
+    beam = 8.0 * V[2]  # the beam meets the surface this far above the sensor's height
+    assert lines and {round(h + beam, 3) for _, _, h in lines} == {6.0}, lines
+    assert {li for _, li, _ in lines} == {0}  # numbered as the nearest level, 4.5 mm
+    # a level within 1 mm of the centre is used as it is
+    near = hole_lines(o, holes, [0.0, 180.0], [6.5, 30.0], 8.0, V, N, 45.0, 2.0, 100.0)
+    assert near and {(li, h) for _, li, h in near} == {(0, 6.5)}
 
 
 def test_a_line_no_checked_move_reaches_is_left_out_and_said_not_the_scan():
@@ -191,3 +215,23 @@ def test_a_line_no_checked_move_reaches_is_left_out_and_said_not_the_scan():
     assert [ln.points[0].line for ln in lines] == list(range(n_look, n_look + len(lines)))
     assert [p.index for p in kept] == list(range(len(look), len(look) + len(kept)))
     assert lines[0].index in via  # the first follow line: a move of its own from `here`
+
+
+def test_a_first_look_of_lone_pulses_names_the_modality_not_the_objects_place():
+    """A "both" plan's first look of steel (no OA pulse) hears echoes it cannot read: the
+    error says to set the modality; a first look that heard nothing asks where the object
+    is; a one-modality plan never gets the modality advice."""
+    from dmdsm.host.scan.auto import no_surface_reason
+
+    n = 400
+    nan = np.full(n, np.nan)
+    quiet = np.full(n, 9.0)
+    loud = quiet.copy()
+    loud[100:160] = 35.0  # 60 waveforms with a lone pulse, none ranged
+    msg = no_surface_reason(loud, quiet, nan, nan, "both")
+    assert 'modality = "us"' in msg and "60 of its 400 waveforms" in msg, msg
+    assert "\n" not in msg and len(msg) < 400
+    for snr_oa, snr_us, mod in ((quiet, quiet, "both"), (loud, quiet, "us"),
+                                (quiet, np.where(np.arange(n) < 5, 35.0, 9.0), "both")):
+        msg = no_surface_reason(snr_oa, snr_us, nan, nan, mod)
+        assert "modality" not in msg and "on the table" in msg, msg

@@ -37,6 +37,21 @@ def test_plan_new_writes_a_plan_scan_reads(tmp_path):
     assert shown.returncode == 0 and "36 points" in shown.stdout
 
 
+def test_plan_new_scans_a_one_modality_material_in_its_modality(tmp_path):
+    """Steel and glass give no OA pulse, foam no US echo: a plan of them in "both" would hear
+    lone pulses it cannot read and see nothing (tests/e2e/test_auto_one_modality.py), so
+    `plan new` takes the material's modality unless --modality says otherwise."""
+    for material, modality in (("steel", "us"), ("Glass", "us"), ("foam", "oa"),
+                               ("aluminium", "both"), ("", "both")):
+        r = run("plan", "new", "x", "--size-mm", "70", "70", "90", "--round", "--material",
+                material, "-o", f"{material or 'none'}.toml", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert load_plan(tmp_path / f"{material or 'none'}.toml").modality == modality, material
+    r = run("plan", "new", "x", "--size-mm", "70", "70", "90", "--material", "steel",
+            "--modality", "both", "-o", "asked.toml", cwd=tmp_path)
+    assert r.returncode == 0 and load_plan(tmp_path / "asked.toml").modality == "both"
+
+
 def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
     for size in (["0", "10", "10"], ["nan", "10", "10"], ["10", "10", "-1"],
                  ["900", "900", "10"]):

@@ -36,8 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--mode", choices=MODES, default="step",
                    help="step: step and shoot every 4 mm; fly: each line one move, every 2 mm "
                         "(needs the sync wire: docs/firmware.md) (default step)")
-    n.add_argument("--modality", choices=MODALITIES, default="both",
-                   help="which distances the scan is for (default both)")
+    n.add_argument("--modality", choices=MODALITIES, default=None,
+                   help="which distances the scan is for (default: the material's; us for "
+                        "glass and steel, which give no OA pulse, oa for foam, else both)")
     n.add_argument("-o", "--output", type=Path, default=None,
                    help="the plan file (default OBJECT_ID.toml)")
     n.add_argument("--force", action="store_true", help="overwrite an existing plan file")

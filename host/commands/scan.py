@@ -104,14 +104,15 @@ def cmd_scan(args: argparse.Namespace) -> int:
                            on_start=on_start)
     except ScanFileError as e:
         raise CliError(str(e)) from None
-    except BaseException:
+    except BaseException as e:
         if "bar" in state:  # end the bar's line first: the note goes on a line of its own
             state["bar"].close()
         w = state.get("writer")
-        if w is not None:
+        if w is not None:  # a plan the scan showed wrong: running it again cannot help
+            then = ("the plan, changed as below, starts a new scan" if isinstance(e, PlanError)
+                    else "run the same command to continue")
             print(f"scan {Path(w.path).stem} stopped after {w.n_done} of {state['planned']} "
-                  f"points; they are saved in {w.path}; run the same command to continue",
-                  file=sys.stderr)
+                  f"points; they are saved in {w.path}; {then}", file=sys.stderr)
         raise
     finally:
         if "bar" in state:

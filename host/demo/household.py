@@ -7,10 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from ..report.page import Section
-from ..scan.plan import ScanPlan
+from ..scan.plan import ScanPlan, modality_for
 from .session import TITLES, Demo, scan_into, write_plan
 
-US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
 FIGURES = ("soda_can", "apple_red", "foam_block", "glass_jar", "tissue_box", "steel_can",
            "plastic_bottle")  # the objects whose contours the report shows (Fig. 4)
 FLY = {"mode": "fly", "average": 12}  # 12 shots per waveform at 1 kHz, step_mm apart
@@ -54,7 +53,7 @@ def stage_household(d: Demo) -> Section:
         w, dep, height = bounding_size(obj)
         boxy = type(obj.shape).__name__ == "Box"
         radius = float(np.hypot(w, dep) / 2) if boxy else w / 2
-        mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
+        mod = modality_for(material)
         d.mount(name)
         runs: dict[str, dict] = {}
         for mode, db in (("step", "db"), ("fly", "db_fly")):

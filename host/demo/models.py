@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..report.page import Section
-from .household import OA_ONLY, US_ONLY
+from ..scan.plan import modality_for
 from .session import TITLES, Demo
 
 # one object per material of the household set (emulator time: every object of it at every
@@ -34,7 +34,7 @@ def campaign_file(d: Demo, names: tuple[str, ...], levels: int) -> Path:
         boxy = type(obj.shape).__name__ == "Box"
         mid = min(0.5 * h, 40.0)
         z = [round(mid + SPACING_MM * (k - (levels - 1) / 2), 1) for k in range(levels)]
-        mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
+        mod = modality_for(material)
         lines += ["[[object]]", f'id = "{name}"', f'material = "{material}"',
                   f"size_mm = [{w:.1f}, {dep:.1f}, {h:.1f}]",
                   f"round = {'false' if boxy else 'true'}", f'modality = "{mod}"',

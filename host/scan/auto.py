@@ -36,7 +36,33 @@ CLEARANCE_MM = 1.0        # a follow line keeps this far outside the keep-out (t
 # the axis at a standoff of the radius), and twice this (97 mm) stays inside what a
 # 1024-sample record (~104 mm of OA) and the OA ranging (80-100 mm) reach
 FAR_LOOK_MAX_STANDOFF_MM = 48.0
+LONE_PULSE_DB = 20.0      # a first look that saw nothing: a waveform with a pulse this strong
+LONE_PULSES_MIN = 10      # ... on at least this many waveforms and this share of them is an
+LONE_PULSES_SHARE = 0.02  # object answering in one modality (no_surface_reason)
 TABLE_CLEAR_MM = 1.0      # a first-look surface lies at least this far above the table
+
+
+def no_surface_reason(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.ndarray,
+                      d_us_mm: np.ndarray, modality: str) -> str:
+    """What to tell the operator when a first look's waveforms (per waveform: SNR dB and
+    distance mm or NaN, per modality) gave no surface. A "both" plan reads a lone pulse
+    only where it can tell OA from US (host/ranging/point.py); an object that answers in one
+    modality (steel and glass give no OA pulse, foam no US echo) leaves its waveforms full
+    of pulses and its outline empty, and the way out is the plan's modality, not the
+    object's place."""
+    snr = np.fmax(np.asarray(snr_oa_db, float), np.asarray(snr_us_db, float))
+    lone = (snr >= LONE_PULSE_DB) & ~np.isfinite(d_oa_mm) & ~np.isfinite(d_us_mm)
+    n, k = len(snr), int(lone.sum())
+    if modality == "both" and k >= max(LONE_PULSES_MIN, LONE_PULSES_SHARE * n):
+        return (f"the first look saw no surface at the plan's levels: {k} of its {n} "
+                f"waveforms carried a pulse "
+                f"(>= {LONE_PULSE_DB:g} dB) but none an OA and US pair, and a lone pulse "
+                f"cannot be told OA or US here: an object that answers in one modality? "
+                f"steel and glass give no OA pulse: set modality = \"us\" in the plan; foam "
+                f"gives no US echo: modality = \"oa\"")
+    return (f"the first look saw no surface at the plan's levels ({n} waveforms, {k} with "
+            f"a pulse of >= {LONE_PULSE_DB:g} dB): is the object on the table, within "
+            f"radius_mm and height_mm of the plan, and levels_mm within its height?")
 
 
 def far_look_standoff_mm(plan: ScanPlan) -> float:
@@ -369,37 +395,49 @@ def outline_window(S: np.ndarray, theta_deg: np.ndarray, outline: Outline, v: np
 
 def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],
                levels_mm: list[float], standoff_mm: float, v: np.ndarray, n: np.ndarray,
-               max_incidence_deg: float, line_s: float, budget_s: float
-               ) -> list[tuple[float, int]]:
-    """(table angle deg, level index) of the lines scanned again for the holes (closed
-    outline cells, (nphi, nz) bool, with no point near them after the follow lines):
-    greedily the candidate angle (every CANDIDATE_STEP_DEG, not yet scanned) and plan level
-    whose line sees the most holes of its height within max_incidence_deg, while the lines'
-    estimated time (line_s each) stays within budget_s."""
+               max_incidence_deg: float, line_s: float, budget_s: float,
+               spacing_mm: float = 2.0) -> list[tuple[float, int, float]]:
+    """(table angle deg, level index, sensor height mm) of the lines scanned again for the
+    holes (closed outline cells, (nphi, nz) bool, with no point near them after the follow
+    lines): greedily the candidate angle (every CANDIDATE_STEP_DEG, not yet scanned) and
+    outline row whose line sees the most holes of the row within max_incidence_deg, while
+    the lines' estimated time (line_s each) stays within budget_s.
+
+    A row's line runs where its beam meets the row's centre height (a hole is the cell's
+    centre with no point within spacing_mm): at the plan level nearest to that when one is
+    within spacing_mm / 2 of it, else at the centre's own height, numbered as the nearest
+    level, if that lies between the plan's lowest and highest level; rows outside the
+    plan's levels are not scanned again."""
     lim = math.cos(math.radians(max_incidence_deg))
     vz = (np.asarray(v, float) / np.linalg.norm(v))[2]
-    nz = holes.shape[1]
-    rows = [int(np.clip(np.searchsorted(outline.z_edges_mm, h + standoff_mm * vz, "right")
-                        - 1, 0, nz - 1)) for h in levels_mm]
+    levels = np.asarray(levels_mm, float)
+    centres = 0.5 * (outline.z_edges_mm[:-1] + outline.z_edges_mm[1:]) - standoff_mm * vz
+    rows: dict[int, tuple[int, float]] = {}  # row: (level index, sensor height mm)
+    for j, h in enumerate(centres):
+        li = int(np.argmin(np.abs(levels - h)))
+        if abs(levels[li] - h) <= spacing_mm / 2:
+            rows[j] = (li, float(levels[li]))
+        elif levels.min() <= h <= levels.max():
+            rows[j] = (li, round(float(h), 3))
     left = holes.copy()
     cands = [a for a in np.arange(0.0, 360.0, CANDIDATE_STEP_DEG)
              if not any(abs((a - b + 180) % 360 - 180) < 1e-6 for b in angles_done)]
     cos = {a: incidence_cos(outline, a, v, n) for a in cands}
     sees = {a: c >= lim for a, c in cos.items()}
-    chosen: list[tuple[float, int]] = []
+    chosen: list[tuple[float, int]] = []  # (angle, row)
     while (len(chosen) + 1) * line_s <= budget_s:
         best, gain = None, (0, 0.0)
         for a in cands:
-            for li, j in enumerate(rows):
+            for j in rows:
                 hit = sees[a][:, j] & left[:, j]
                 g = (int(hit.sum()), float(cos[a][hit, j].sum()))  # more holes, then nearer
-                if g[0] and g > gain and (float(a), li) not in chosen:  # head on
-                    best, gain = (float(a), li), g
+                if g[0] and g > gain and (float(a), j) not in chosen:  # head on
+                    best, gain = (float(a), j), g
         if best is None:
             break
         chosen.append(best)
-        left[:, rows[best[1]]] &= ~sees[best[0]][:, rows[best[1]]]
-    return chosen
+        left[:, best[1]] &= ~sees[best[0]][:, best[1]]
+    return [(a, *rows[j]) for a, j in chosen]
 
 
 def keep_out_cap(keep: OutlineKeepOut, xs: np.ndarray, z_mm: float, theta_deg: float,

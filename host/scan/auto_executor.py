@@ -25,9 +25,10 @@ from .auto import (
     first_look_points,
     follow_points,
     hole_lines,
+    no_surface_reason,
 )
 from .common import Progress, ScanStats
-from .coverage import coverage, covered_mask
+from .coverage import coverage, uncovered_any
 from .fly import ramp_mm
 from .fly_executor import (
     TRANSITION_MM,
@@ -39,7 +40,7 @@ from .fly_executor import (
     run_fly_scan,
 )
 from .outline import Outline, OutlineKeepOut, check_moves, outline_from_points
-from .plan import AUTO_SPACING_MM, Point, ScanPlan, keep_outs
+from .plan import AUTO_SPACING_MM, PlanError, Point, ScanPlan, keep_outs
 from .reconstruct import object_points, stage_points
 from .scanfile import ScanWriter
 
@@ -91,13 +92,19 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
                 machine: MachineLimits, turntable: KeepOut) -> AutoPlan:
     """Plan the follow lines from the first look in the file and check every move of them
     (with the ways around the object between lines) against the outline's keep-out; raises
-    UnsafeMove if none is safe, ValueError if the first look saw nothing."""
+    UnsafeMove if none is safe, PlanError if the first look saw nothing in the outline's
+    rows the plan's levels scan (no_surface_reason says why it may have)."""
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
     n_look = len(fly_lines(look))
     outline = first_look_outline(writer, n_look, plan, calibration)
-    if not outline.closed().any():
-        raise ValueError("the first look saw no surface: is the object on the table, within "
-                         "radius_mm and height_mm of the plan?")
+    rows = outline.rows_at(np.asarray(plan.levels_mm, float) + plan.standoff_mm * v[2]
+                           / np.linalg.norm(v))
+    if not outline.closed()[:, rows].any():  # nothing to follow where the plan scans
+        d, m = writer.data, writer.n_done
+        sel = d["point_index"][:m] < n_look
+        raise PlanError(no_surface_reason(
+            *(d[k][:m][sel] for k in ("snr_oa_db", "snr_us_db", "distance_oa_mm",
+                                      "distance_us_mm")), plan.modality))
     angles, share = choose_angles(outline, plan.angles_deg, v, n, plan.max_incidence_deg,
                                   plan.max_angles)
     speed, accel = fly_speed(plan, machine)
@@ -196,26 +203,29 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
                plan: ScanPlan, calibration: dict, machine: MachineLimits,
                turntable: KeepOut) -> tuple[list[Point], dict[int, list[Waypoint]], float]:
     """The lines scanned again for the holes the first look and the follow lines (the
-    file's lines before n_before) left in the outline: at new table angles that see them
-    (auto.hole_lines, within plan.rescan_budget_s), checked like the follow lines. Returns
-    their points, their ways around the object and the share of closed cells that were
-    holes."""
+    file's lines before n_before) left in the outline, per modality of the plan (a place
+    with OA points and no US echo is a hole of a "both" plan): at new table angles that
+    see them (auto.hole_lines, within plan.rescan_budget_s), checked like the follow lines.
+    Returns their points, their ways around the object and the share of closed cells that
+    were holes."""
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
     outline = auto.outline
     closed = outline.closed()
-    P = _stored_points(writer, n_before, calibration)
     i, j = np.nonzero(np.isfinite(outline.filled_r_mm()))  # surface_points' order
     holes = np.zeros_like(closed)
-    holes[i, j] = ~covered_mask(outline.surface_points(), P, AUTO_SPACING_MM)
+    holes[i, j] = uncovered_any(outline.surface_points(), [
+        _stored_points(writer, n_before, calibration, (m,)) for m in plan_modalities(plan)],
+        AUTO_SPACING_MM)
     share = float(holes.sum() / max(closed.sum(), 1))
     speed, accel = fly_speed(plan, machine)
     line_s = (2 * plan.radius_mm + 2 * (ramp_mm(speed, accel, plan.step_mm) + TRANSITION_MM)
               ) / speed + 1.0  # a line and its way there, about
     pairs = hole_lines(outline, holes, auto.angles_deg, plan.levels_mm, plan.standoff_mm, v,
-                       n, plan.max_incidence_deg, line_s, plan.rescan_budget_s)
+                       n, plan.max_incidence_deg, line_s, plan.rescan_budget_s,
+                       AUTO_SPACING_MM)
     pts: list[Point] = []
-    for k, (a, li) in enumerate(pairs):
-        one = replace(plan, levels_mm=[plan.levels_mm[li]])
+    for k, (a, li, height_mm) in enumerate(pairs):
+        one = replace(plan, levels_mm=[height_mm])
         for p in follow_points(one, outline, [a], v, n, X_R, speed, accel,
                                machine.junction_deviation_mm, n_before + len(fly_lines(pts))):
             p.level, p.angle_index = li, len(auto.angles_deg) + k
@@ -229,6 +239,11 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
                                     [OutlineKeepOut(outline, X_R, n), turntable])
     auto.skipped += skipped
     return pts, via, share
+
+
+def plan_modalities(plan: ScanPlan) -> tuple[str, ...]:
+    """The modalities a plan's scan is for ("both": OA and US)."""
+    return ("oa", "us") if plan.modality == "both" else (plan.modality,)
 
 
 def _stored_points(writer: ScanWriter, n_lines: float, calibration: dict,

@@ -82,6 +82,10 @@ class Outline:
         j = np.clip(np.searchsorted(self.z_edges_mm, z_mm, side="right") - 1, 0, nz - 1)
         return i, j
 
+    def rows_at(self, z_mm: np.ndarray) -> np.ndarray:
+        """The outline's row index of each object-frame height (mm), clipped to its rows."""
+        return self._cells(np.zeros_like(np.asarray(z_mm, float)), z_mm)[1]
+
     def keep_radius_mm(self, phi_deg: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
         """The keep-out radius (mm) at object-frame azimuths (deg) and heights (mm): in closed
         cells the max of r over the cell and its 8 neighbours (so a surface between samples is

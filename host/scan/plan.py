@@ -194,12 +194,27 @@ AUTO_AVERAGE = 24
 AUTO_FEED_MM_MIN = 9000.0  # its moves between lines: 150 mm/s (Z and A at their own limits)
 
 
+US_ONLY_MATERIALS = ("glass", "steel")  # no OA pulse: the laser is reflected, not absorbed
+OA_ONLY_MATERIALS = ("foam",)           # no US echo back: the foam soaks the sound up
+
+
+def modality_for(material: str) -> str:
+    """The modality an object of this material answers in: "us" for glass and steel (no OA
+    pulse), "oa" for foam (no US echo), "both" for any other (or none given). A "both"
+    plan of a one-modality object hears lone pulses it cannot read (host/ranging/point.py)."""
+    m = material.strip().lower()
+    return "us" if m in US_ONLY_MATERIALS else "oa" if m in OA_ONLY_MATERIALS else "both"
+
+
 def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: bool,
-                  material: str = "", mode: str = "step", modality: str = "both") -> ScanPlan:
+                  material: str = "", mode: str = "step", modality: str | None = None
+                  ) -> ScanPlan:
     """A first plan for an object of width x depth x height (mm) centred on the table: its
     bounding cylinder (+1 mm; a box's from its diagonal), one level at half its height (at
     most 40 mm), four angles, the middle 70 % of its width; every 4 mm step and shoot, every
-    2 mm fly. Edit the file for more levels or a finer step (docs/scanning.md)."""
+    2 mm fly; the modality given, else the material's (modality_for). Edit the file for more
+    levels or a finer step (docs/scanning.md)."""
+    modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
         raise PlanError(f"the size must be three positive numbers in mm (got {w:g} {d:g} "

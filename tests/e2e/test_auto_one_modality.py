@@ -1,0 +1,48 @@
+"""An auto scan of an object that answers in one modality only, in hil_sim: steel gives a US
+echo and no OA pulse, so a "both" plan's first look hears a lone pulse on its waveforms that
+it cannot tell OA or US (host/ranging/point.py) and sees no surface. `dmdsm scan` stops
+with one line that says to set modality = "us" (not where to put the object, and not a
+traceback); the plan changed so scans the can."""
+
+import subprocess
+
+import numpy as np
+from fly_scan_helpers import scan_cmd, scan_in_process, setup
+
+from dmdsm.host.links.sensor import SensorClient
+from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.points import scan_points
+from dmdsm.host.scan.scanfile import read_scan
+
+PLAN = dict(radius_mm=38.0, height_mm=110.0, levels_mm=[15.0], angles_deg=[0.0],
+            step_mm=2.0, average=12, mode="auto", first_look_step_mm=10.0, max_angles=2,
+            rescan_budget_s=0.0)
+
+
+def test_a_steel_can_in_a_both_plan_is_told_to_scan_us_and_then_scans(emulator, tmp_path):
+    block = emulator(speed=20.0, scene="aluminium_block", seed=41)
+    ranging, _, _, _ = setup(block, tmp_path)  # ranging measured on the gauge block
+    block.stop()
+    emu = emulator(speed=4.0, scene="steel_can", seed=41)
+    s = emu.sim.scene
+    cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
+           "X_R": s.X_R.tolist()}
+    text = "[calibration]\n" + "".join(f"{k} = {v}\n" for k, v in cal.items())
+    (tmp_path / "cal.toml").write_text(text)
+    (tmp_path / "plan.toml").write_text(ScanPlan("steel_can", "steel", **PLAN).to_toml())
+    r = subprocess.run(scan_cmd(emu, tmp_path, "both", "--no-model"), capture_output=True,
+                       text=True, timeout=900)
+    err = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert err[-1].startswith("dmdsm: error: the first look saw no surface") and \
+        'set modality = "us"' in err[-1], r.stderr
+    assert "run the same command" not in r.stderr  # it would stop there again
+    plan = ScanPlan("steel_can", "steel", modality="us", **PLAN)
+    run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
+    assert run.status == "complete" and run.auto["lines"] > 0, run.auto
+    a = run.auto
+    assert a["outline_seen_share"] > 0.3 and a["coverage"]["us"] > 0.3, a
+    # its US points lie on the true can
+    P = scan_points(read_scan(run.path, waveforms=False))["us"]["P"]
+    d = np.abs(emu.sim.truth_objects()[0].signed_distance(P))
+    assert len(P) > 100 and np.median(d) < 0.3, (len(P), np.percentile(d, [50, 95]))

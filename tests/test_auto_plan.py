@@ -153,7 +153,7 @@ def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
     # the box's +x end (azimuth about 0 deg) at the 20 mm level was never covered
     phi = (np.arange(72) + 0.5) * 5.0
     holes[(phi < 20) | (phi > 340), 4] = True
-    lines = hole_lines(o, holes, [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N, 45.0,
+    lines = hole_lines(o, [(holes, 45.0)], [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N,
                        line_s=2.0, budget_s=10.0)
     # the row's centre (18 mm) is 1.5 mm from the 20 mm level's beam: the line runs at the
     # centre's own height, numbered as the 20 mm level
@@ -163,9 +163,9 @@ def test_holes_are_scanned_again_from_angles_that_see_them_within_the_budget():
     # the table turns the +x end to face the sensor (which looks along +y): the end's normal
     # R(a) (1, 0, 0) = (cos a, sin a, 0) must point at it, -y: a = 270 deg, head on
     assert a == 270.0, lines
-    assert hole_lines(o, holes, [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N, 45.0,
+    assert hole_lines(o, [(holes, 45.0)], [0.0, 180.0], [10.0, 20.0, 30.0], 8.0, V, N,
                       line_s=2.0, budget_s=1.0) == []  # no time for one line
-    assert hole_lines(o, np.zeros_like(holes), [0.0], [20.0], 8.0, V, N, 45.0, 2.0,
+    assert hole_lines(o, [(np.zeros_like(holes), 45.0)], [0.0], [20.0], 8.0, V, N, 2.0,
                       100.0) == []  # nothing to do
 
 
@@ -179,14 +179,41 @@ def test_a_hole_between_sparse_levels_is_scanned_at_its_own_height_none_beyond_t
     holes = np.zeros_like(o.closed())
     holes[:, 1] = True   # 4-8 mm, between the levels 4.5 and 30
     holes[:, 9] = True   # 36-40 mm, above the highest level
-    lines = hole_lines(o, holes, [0.0, 180.0], [4.5, 30.0], 8.0, V, N, 45.0,
+    lines = hole_lines(o, [(holes, 45.0)], [0.0, 180.0], [4.5, 30.0], 8.0, V, N,
                        line_s=2.0, budget_s=100.0)
     beam = 8.0 * V[2]  # the beam meets the surface this far above the sensor's height
     assert lines and {round(h + beam, 3) for _, _, h in lines} == {6.0}, lines
     assert {li for _, li, _ in lines} == {0}  # numbered as the nearest level, 4.5 mm
     # a level within 1 mm of the centre is used as it is
-    near = hole_lines(o, holes, [0.0, 180.0], [6.5, 30.0], 8.0, V, N, 45.0, 2.0, 100.0)
+    near = hole_lines(o, [(holes, 45.0)], [0.0, 180.0], [6.5, 30.0], 8.0, V, N, 2.0, 100.0)
     assert near and {(li, h) for _, li, h in near} == {(0, 6.5)}
+
+
+def test_a_us_hole_is_scanned_from_where_the_beam_meets_it_head_on():
+    """US echoes come back within about 15 deg of head on: a place with OA points and no US
+    echo is a hole of a "both" plan, and the line chosen for it meets it within 15 deg; an
+    OA hole at 45 deg of the same line is met too, and one line serves both when it can."""
+    from dmdsm.host.scan.auto import hole_lines, incidence_cos
+
+    o = box_outline()
+    phi = (np.arange(72) + 0.5) * 5.0
+    us = np.zeros_like(o.closed())
+    us[(phi < 10) | (phi > 350), 4] = True  # the +x end's middle: no US echo there yet
+    oa = np.zeros_like(us)
+    lines = hole_lines(o, [(oa, 45.0), (us, 15.0)], [0.0, 180.0], [10.0, 20.0, 30.0], 8.0,
+                       V, N, line_s=2.0, budget_s=4.0)
+    assert lines, lines
+    for a, _, _ in lines:  # each line meets the US holes it was chosen for within 15 deg
+        c = incidence_cos(o, a, V, N)[:, 4]
+        assert (c[us[:, 4]] >= np.cos(np.radians(15.0))).any(), (a, lines)
+    assert lines[0][0] == 270.0  # head on
+    # with the head-on angle taken already, no line is left that meets them within 10 deg,
+    # where 45 deg (OA's) takes an angle beside it
+    levels = [10.0, 20.0, 30.0]
+    assert hole_lines(o, [(us, 10.0)], [0.0, 180.0, 270.0], levels, 8.0, V, N, 2.0,
+                      4.0) == []
+    assert hole_lines(o, [(us, 45.0)], [0.0, 180.0, 270.0], levels, 8.0, V, N, 2.0,
+                      4.0) != []
 
 
 def test_a_line_no_checked_move_reaches_is_left_out_and_said_not_the_scan():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from dmdsm.host.scan.coverage import coverage, covered_mask, laser_duty, uncovered_any
+from dmdsm.host.scan.coverage import coverage, covered_mask, laser_duty
 from dmdsm.host.scan.reconstruct import object_points
 from dmdsm.sim.physics.scene import (
     TABLE_I_N,
@@ -87,19 +87,6 @@ def test_coverage_of_nothing():
         coverage(surface, surface, 0.0)
     with pytest.raises(ValueError):
         coverage(surface, surface[:, :2], 1.0)
-
-
-def test_a_place_one_modality_missed_is_a_hole_of_a_scan_of_both():
-    """The auto scan's holes (scanned again) are places either modality has no point near:
-    OA points on a patch with no US echo do not make it covered for US."""
-    surface = np.column_stack([np.arange(10.0) * 2, np.zeros(10), np.zeros(10)])
-    oa = surface.copy()                 # OA everywhere
-    us = surface[:6] + [0.0, 0.5, 0.0]  # no US echo from the last four
-    holes = uncovered_any(surface, [oa, us], 1.0)
-    assert holes.tolist() == [False] * 6 + [True] * 4
-    assert not uncovered_any(surface, [oa], 1.0).any()  # an OA-only scan has none
-    assert uncovered_any(surface, [oa, np.zeros((0, 3))], 1.0).all()  # US saw nothing
-    assert uncovered_any(np.zeros((0, 3)), [oa], 1.0).shape == (0,)
 
 
 def test_laser_duty_is_stored_shots_over_fired_shots():

@@ -24,6 +24,7 @@ from .plan import Point, ScanPlan, expand
 from .reconstruct import table_frame
 
 FIRST_LOOK_ANGLES = 8     # table angles of the first look (every 45 deg)
+US_MAX_INCIDENCE_DEG = 15.0  # US echoes come back within this of head on (bench/sensor_limits.py)
 MAX_SLOPE = 1.0           # |dY/dX| of a follow line: X moves at >= 71 % of the path speed
 CANDIDATE_STEP_DEG = 15.0  # table angles the angle choice picks from
 EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (flat), each side
@@ -393,22 +394,23 @@ def outline_window(S: np.ndarray, theta_deg: np.ndarray, outline: Outline, v: np
     return near, np.where(ok, far, np.nan)
 
 
-def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],
-               levels_mm: list[float], standoff_mm: float, v: np.ndarray, n: np.ndarray,
-               max_incidence_deg: float, line_s: float, budget_s: float,
+def hole_lines(outline: Outline, holes: list[tuple[np.ndarray, float]],
+               angles_done: list[float], levels_mm: list[float], standoff_mm: float,
+               v: np.ndarray, n: np.ndarray, line_s: float, budget_s: float,
                spacing_mm: float = 2.0) -> list[tuple[float, int, float]]:
     """(table angle deg, level index, sensor height mm) of the lines scanned again for the
-    holes (closed outline cells, (nphi, nz) bool, with no point near them after the follow
-    lines): greedily the candidate angle (every CANDIDATE_STEP_DEG, not yet scanned) and
-    outline row whose line sees the most holes of the row within max_incidence_deg, while
-    the lines' estimated time (line_s each) stays within budget_s.
+    holes: per modality, the closed outline cells ((nphi, nz) bool) with no point of it near
+    them after the follow lines, and the incidence (deg) within which a line must meet a
+    cell to give that modality a point there (OA the plan's max_incidence_deg, US 15 deg).
+    Greedily the candidate angle (every CANDIDATE_STEP_DEG, not yet scanned) and outline
+    row whose line meets the most holes of the row within their incidences, while the
+    lines' estimated time (line_s each) stays within budget_s.
 
     A row's line runs where its beam meets the row's centre height (a hole is the cell's
     centre with no point within spacing_mm): at the plan level nearest to that when one is
     within spacing_mm / 2 of it, else at the centre's own height, numbered as the nearest
     level, if that lies between the plan's lowest and highest level; rows outside the
     plan's levels are not scanned again."""
-    lim = math.cos(math.radians(max_incidence_deg))
     vz = (np.asarray(v, float) / np.linalg.norm(v))[2]
     levels = np.asarray(levels_mm, float)
     centres = 0.5 * (outline.z_edges_mm[:-1] + outline.z_edges_mm[1:]) - standoff_mm * vz
@@ -419,24 +421,29 @@ def hole_lines(outline: Outline, holes: np.ndarray, angles_done: list[float],
             rows[j] = (li, float(levels[li]))
         elif levels.min() <= h <= levels.max():
             rows[j] = (li, round(float(h), 3))
-    left = holes.copy()
+    left = [mask.copy() for mask, _ in holes]
+    lims = [math.cos(math.radians(deg)) for _, deg in holes]
     cands = [a for a in np.arange(0.0, 360.0, CANDIDATE_STEP_DEG)
              if not any(abs((a - b + 180) % 360 - 180) < 1e-6 for b in angles_done)]
     cos = {a: incidence_cos(outline, a, v, n) for a in cands}
-    sees = {a: c >= lim for a, c in cos.items()}
+    sees = {a: [c >= lim for lim in lims] for a, c in cos.items()}
     chosen: list[tuple[float, int]] = []  # (angle, row)
     while (len(chosen) + 1) * line_s <= budget_s:
         best, gain = None, (0, 0.0)
         for a in cands:
             for j in rows:
-                hit = sees[a][:, j] & left[:, j]
-                g = (int(hit.sum()), float(cos[a][hit, j].sum()))  # more holes, then nearer
-                if g[0] and g > gain and (float(a), j) not in chosen:  # head on
+                hits = [s_[:, j] & h[:, j] for s_, h in zip(sees[a], left)]
+                # more holes met, then met nearer head on
+                g = (sum(int(h.sum()) for h in hits),
+                     sum(float(cos[a][h, j].sum()) for h in hits))
+                if g[0] and g > gain and (float(a), j) not in chosen:
                     best, gain = (float(a), j), g
         if best is None:
             break
         chosen.append(best)
-        left[:, best[1]] &= ~sees[best[0]][:, best[1]]
+        a, j = best
+        for s_, h in zip(sees[a], left):
+            h[:, j] &= ~s_[:, j]
     return [(a, *rows[j]) for a, j in chosen]
 
 

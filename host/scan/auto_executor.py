@@ -18,6 +18,7 @@ from ..links.interfaces import Stage, StreamSensor
 from ..links.safety import KeepOut, UnsafeMove
 from ..ranging.point import PointRanger
 from .auto import (
+    US_MAX_INCIDENCE_DEG,
     choose_angles,
     far_look_levels,
     far_look_plan,
@@ -28,7 +29,7 @@ from .auto import (
     no_surface_reason,
 )
 from .common import Progress, ScanStats
-from .coverage import coverage, uncovered_any
+from .coverage import coverage, covered_mask
 from .fly import ramp_mm
 from .fly_executor import (
     TRANSITION_MM,
@@ -212,17 +213,21 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
     outline = auto.outline
     closed = outline.closed()
     i, j = np.nonzero(np.isfinite(outline.filled_r_mm()))  # surface_points' order
-    holes = np.zeros_like(closed)
-    holes[i, j] = uncovered_any(outline.surface_points(), [
-        _stored_points(writer, n_before, calibration, (m,)) for m in plan_modalities(plan)],
-        AUTO_SPACING_MM)
+    ref = outline.surface_points()
+    per_mod = []  # a hole of either: OA points do not cover a US hole
+    for m in plan_modalities(plan):
+        mask = np.zeros_like(closed)
+        mask[i, j] = ~covered_mask(ref, _stored_points(writer, n_before, calibration, (m,)),
+                                   AUTO_SPACING_MM)
+        per_mod.append((mask, plan.max_incidence_deg if m == "oa" else
+                        min(plan.max_incidence_deg, US_MAX_INCIDENCE_DEG)))
+    holes = np.logical_or.reduce([mask for mask, _ in per_mod])
     share = float(holes.sum() / max(closed.sum(), 1))
     speed, accel = fly_speed(plan, machine)
     line_s = (2 * plan.radius_mm + 2 * (ramp_mm(speed, accel, plan.step_mm) + TRANSITION_MM)
               ) / speed + 1.0  # a line and its way there, about
-    pairs = hole_lines(outline, holes, auto.angles_deg, plan.levels_mm, plan.standoff_mm, v,
-                       n, plan.max_incidence_deg, line_s, plan.rescan_budget_s,
-                       AUTO_SPACING_MM)
+    pairs = hole_lines(outline, per_mod, auto.angles_deg, plan.levels_mm, plan.standoff_mm,
+                       v, n, line_s, plan.rescan_budget_s, AUTO_SPACING_MM)
     pts: list[Point] = []
     for k, (a, li, height_mm) in enumerate(pairs):
         one = replace(plan, levels_mm=[height_mm])

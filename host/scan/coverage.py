@@ -67,14 +67,3 @@ def laser_duty(stored_waveforms: int, average: int, laser_hz: float, duration_s:
         return float("nan")
     return float(min(stored_waveforms * average / fired, 1.0))
 
-
-def uncovered_any(surface_mm: np.ndarray, point_sets: list[np.ndarray], spacing_mm: float
-                  ) -> np.ndarray:
-    """Per reference surface sample (m, 3, mm): True where one of the point sets (one per
-    modality of a scan) has no point within `spacing_mm` of it: a hole of a "both" scan
-    is a place either modality missed, not only a place both did."""
-    surface = np.asarray(surface_mm, float).reshape(-1, 3)
-    out = np.zeros(len(surface), bool)
-    for points in point_sets:
-        out |= ~covered_mask(surface, points, spacing_mm)
-    return out

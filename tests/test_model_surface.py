@@ -445,3 +445,25 @@ def test_a_noisy_smooth_surface_gets_no_false_edge():
         Q = P + rng.normal(0, 1, len(P))[:, None] * sd[:, None] * nr + smear
         cov = np.einsum("k,ki,kj->kij", sd ** 2, nr, nr) + 1e-4 * np.eye(3)
         assert build_surface(Q, cov, nr).params["edge_vertices"] == 0, seed
+
+
+def test_the_spots_footprint_counts_across_the_travel_not_along_it():
+    """A fly waveform's shots move along the travel: a surface tilted along it smears (the
+    travel term), one tilted across it shows every shot the same footprint, whose error the
+    shots cannot average: (FOOTPRINT_K * spot * sin(tilt))^2 along the normal. A point that
+    stood still (step and shoot) gets none (its neighbours see other footprints)."""
+    from dmdsm.host.model.surface import FOOTPRINT_K, footprint_var
+
+    a = np.radians(50.0)
+    view = np.tile([0.0, 1.0, 0.0], (4, 1))                   # the beam looks along -y
+    normals = np.array([[0.0, np.cos(a), np.sin(a)],          # tilted up: across X travel
+                        [np.sin(a), np.cos(a), 0.0],          # tilted sideways: along it
+                        [0.0, np.cos(a), np.sin(a)],          # tilted up, stood still
+                        [0.0, 1.0, 0.0]])                     # head on
+    travel = np.zeros((4, 3, 3))
+    travel[[0, 1, 3], 0, 0] = 2.0 ** 2 / 12                    # 2 mm along X
+    var = footprint_var(np.full(4, 0.25), normals, view, travel)
+    full = (FOOTPRINT_K * 0.25 * np.sin(a)) ** 2
+    np.testing.assert_allclose(var, [full, 0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(footprint_var(np.zeros(4), normals, view, travel), 0.0)
+    np.testing.assert_allclose(footprint_var(np.full(4, 0.25), normals, view, None), 0.0)

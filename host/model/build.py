@@ -34,6 +34,7 @@ MATERIAL_SMEAR_MM = 0.4    # a waveform whose shots' depth changed by more than 
 # and 18 % beyond (the classifier learns standing shots)
 MATERIAL_CLEAN_RADIUS_MM = 8.0  # the clean waveforms within this of a vertex give it their
 # probabilities (weighted by distance) before any smeared one within MATERIAL_RADIUS_MM
+SPOT_RADIUS_MM = 0.25      # the laser spot's radius at the target (OA points' footprint)
 STAGE_STD_MM = 0.005       # the stage's repeatability per axis (Marlin's step: 1/80 mm)
 TABLE_STD_DEG = 0.01       # the turntable's angle repeatability
 MIN_POINTS = 50            # points a surface needs (after the outliers are out)
@@ -264,7 +265,9 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
                          f"it (more levels or angles) first")
     surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
                          spacing_mm=spacing_mm, cov_common=pts["common"][good],
-                         cov_repeat=pts["repeat"][good], group=pts["scan"][good])
+                         cov_repeat=pts["repeat"][good], group=pts["scan"][good],
+                         spot_mm=np.where(pts["mod"][good] == MODS.index("oa"),
+                                          SPOT_RADIUS_MM, 0.0))
     classes: list[str] = []
     prob = np.zeros((len(surf.vertices_mm), 0), np.float32)
     if clf is not None:

@@ -22,6 +22,8 @@ than stated), else scaled down by the reduced chi-square of the fits around it w
 points scatter less than stated (the ranging's floor is its calibration target's scatter,
 and a waveform averaged over a moving spot averages the surface's own scatter down), plus
 the common (calibration) part, which a local fit cannot average down, plus
+the laser spot's footprint on a surface tilted across the travel (footprint_var: every shot
+of a waveform sees the same footprint, so neither the shots nor the fit average it), plus
 the travel smear once however many scans repeat it, plus a bias term where the points nearest
 the vertex misfit the fit (a sharp edge it rounds). Where the points near a vertex come from
 two faces (their normals spread by half of edges.MIN_ANGLE_DEG, or that misfit) and the
@@ -65,6 +67,8 @@ EDGE_MISFIT = 3.0       # two planes are tried where the quadratic's chi^2 excee
 # of its stds (it demonstrably misfits: on a noisy smooth surface a split can fit noise)...
 EDGE_BETTER = 0.5       # ... and replace it where their chi^2 is below this share of its, and
 # they move the vertex less than a quarter of the radius from where the quadratic put it
+FOOTPRINT_K = 0.5        # the footprint's error along the normal, in spot radii x sin(tilt)
+MIN_TRAVEL_MM = 0.05     # a waveform whose shots moved less than this stood still
 SCATTER_VERTICES = 64    # the scatter factor's neighbourhood: this many supported vertices...
 SCATTER_RADIUS = 2.0     # ... within this many support radii
 
@@ -128,6 +132,31 @@ def _pca_normals(P: np.ndarray, k: int, radius_mm: float, max_k: int) -> np.ndar
         _, vec = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
         out[lo:lo + _CHUNK] = vec[:, :, 0]
     return out
+
+
+def footprint_var(spot_mm: np.ndarray, normals: np.ndarray, view: np.ndarray,
+                  travel_cov: np.ndarray | None) -> np.ndarray:
+    """(k,) mm^2 the variance along its normal that the laser spot's footprint adds to a
+    point (spot radius spot_mm; unit normals and view directions (k, 3); the travel's
+    covariance (k, 3, 3) mm^2 or None): on a surface tilted across the travel, where the
+    shots of one fly waveform see the same footprint, (FOOTPRINT_K * spot * sin(tilt))^2,
+    the same for the points of one place; a tilt along the travel is averaged over the
+    shots and is the travel smear's. Measured on fly and auto scans (bench/model.py, the
+    pear); a point that stood still (step and shoot, or no travel given) gets none: its
+    neighbours, a step apart, see other footprints, and the fit's scatter shows them."""
+    n = np.asarray(normals, float)
+    b = np.asarray(view, float)
+    if travel_cov is None:
+        return np.zeros(len(n))
+    nb = np.einsum("ki,ki->k", n, b)
+    w, vec = np.linalg.eigh(np.asarray(travel_cov, float))
+    t = vec[:, :, -1]                                     # the travel's direction
+    moved = 12.0 * w[:, -1] > MIN_TRAVEL_MM ** 2
+    c = np.cross(b, t)
+    c /= np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-12)
+    nc = np.einsum("ki,ki->k", n, c)
+    across2 = np.where(moved, nc ** 2 / np.maximum(nb ** 2 + nc ** 2, 1e-12), 0.0)
+    return (FOOTPRINT_K * np.asarray(spot_mm, float)) ** 2 * across2
 
 
 def _facing(w0: np.ndarray, view: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -241,7 +270,8 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                   min_support: int = 10, *, cov_common: np.ndarray | None = None,
                   cov_repeat: np.ndarray | None = None, group: np.ndarray | None = None,
                   max_voxels: int = 3_000_000, max_neighbours: int = 48,
-                  max_offcentre: float = 1.0) -> SurfaceModel:
+                  max_offcentre: float = 1.0, spot_mm: np.ndarray | None = None
+                  ) -> SurfaceModel:
     """The closed surface of points P_mm (k, 3) mm with covariances cov (k, 3, 3) mm^2 (all of
     it) and view_dir (k, 3) unit vectors toward the sensor, in the object frame.
 
@@ -262,10 +292,13 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     travel), independent within a group but fully correlated across groups: its share of the
     fit variance, sum_g V_g, becomes (sum_g sqrt(V_g))^2, so fusing K scans of one place does
     not average it down by K.
+    spot_mm (k,) mm: the laser spot's radius of each point (0 for a US point), for the
+    footprint's variance (footprint_var), added like the common part.
     sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else the
-    scatter factor: _scatter_factor, <= 1) + common variance + bias^2 + the repeated part's
-    excess), bias^2 = (chi2_near - 1) * s2 where the points nearest the vertex (weight scale
-    h/2) misfit the fit by LOCAL_SIGNIFICANT of chi2's stds (an edge the quadratic rounds).
+    scatter factor: _scatter_factor, <= 1) + common and footprint variance + bias^2 + the
+    repeated part's excess), bias^2 = (chi2_near - 1) * s2 where the points nearest the
+    vertex (weight scale h/2) misfit the fit by LOCAL_SIGNIFICANT of chi2's stds (an edge the
+    quadratic rounds).
     params records the choices (spacing, radius, grid, watertight, time, edge_vertices: how
     many vertices two planes placed).
     Raises ValueError for fewer than 20 finite points or shapes that do not match."""
@@ -286,6 +319,11 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         if repeat.shape != (len(ok), 3, 3) or grp.shape != (len(ok),):
             raise ValueError("cov_repeat (k, 3, 3) and group (k,) must match P")
         repeat, grp = repeat[ok], grp[ok]
+    spot = np.zeros(len(ok)) if spot_mm is None else np.asarray(spot_mm, float)
+    if spot.shape != (len(ok),):
+        raise ValueError("spot_mm (k,) must match P")
+    spot = spot[ok]
+    repeat_all = None if cov_repeat is None else np.asarray(cov_repeat, float)[ok]
     own = cov - common
     tree = cKDTree(P)
     gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
@@ -294,6 +332,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     h = R / 2
     normals_p = point_normals(P, vd, radius_mm=R)
     pvar = np.einsum("ki,kij,kj->k", normals_p, own, normals_p)
+    fp_var = footprint_var(spot, normals_p, vd, repeat_all)
     origin, shape, s = _grid(P, spacing_mm, R + 2 * spacing_mm, max_voxels)
     f = _hoppe_grid(P, normals_p, tree, origin, shape, s, h)
     mesh, dropped = _mesh(f, origin, s)
@@ -323,7 +362,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
-        var_c = (w * sc).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
+        var_c = (w * (sc + fp_var[ii])).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
                 & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))

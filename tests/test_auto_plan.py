@@ -4,6 +4,7 @@ the table angles chosen see the outline within the plan's incidence, and every m
 follow lines is checked against the outline's keep-out."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -262,3 +263,26 @@ def test_a_first_look_of_lone_pulses_names_the_modality_not_the_objects_place():
                                 (quiet, np.where(np.arange(n) < 5, 35.0, 9.0), "both")):
         msg = no_surface_reason(snr_oa, snr_us, nan, nan, mod)
         assert "modality" not in msg and "on the table" in msg, msg
+
+
+def test_a_us_only_plan_follows_from_the_first_looks_distance():
+    """US answers only head on, so the outline of a US-only first look may miss a handle
+    beside what it saw (a steel mug's, in the emulator): its follow lines keep the first
+    look's distance (standoff outside the bounding cylinder) at every azimuth; a plan that
+    reads OA keeps out of the outline grown by its margin."""
+    from dmdsm.host.scan.auto import follow_keep_out
+
+    o = box_outline()
+    X_R = np.array([235.0, 266.0, 0.0])
+    both = ScanPlan("b", radius_mm=31.0, height_mm=40.0, levels_mm=[20.0], mode="auto")
+    us = replace(both, modality="us")
+    phi = np.radians(np.arange(0.0, 360.0, 15.0))
+
+    def at(r):  # stage positions at radius r (mm) about the axis, 20 mm up
+        return X_R + np.column_stack([r * np.cos(phi), r * np.sin(phi), np.full(len(phi), 20.0)])
+
+    k_us, k_both = follow_keep_out(us, o, X_R, N), follow_keep_out(both, o, X_R, N)
+    assert k_us.inside(at(31.0 + 8.0 - 1.5), 0.0).all()  # inside the first look's distance
+    assert not k_us.inside(at(31.0 + 8.0 + 0.01), 0.0).any()
+    assert not k_both.inside(at(31.0 + 2.5), 0.0).any()   # the outline (the box) + 2 mm
+    assert k_both.inside(at(14.0), 0.0).all()             # the box's own half-depth is 15

@@ -326,14 +326,34 @@ def choose_angles(outline: Outline, base_deg: list[float], v: np.ndarray, n: np.
     return sorted(chosen), share
 
 
+def follow_keep_out(plan: ScanPlan, outline: Outline, X_R: np.ndarray, n: np.ndarray
+                    ) -> OutlineKeepOut:
+    """What the follow and hole lines keep out of. A plan that reads OA: the outline grown
+    by its margin (the laser's path to an OA pulse is free space, and OA answers at up to
+    60 deg of incidence, so what sticks out is in the outline). A US-only plan: the first
+    look's own distance, standoff_mm outside the bounding cylinder, everywhere; a US echo
+    comes back only head on, so a handle or a rim the outline never saw may stand anywhere
+    beside the surfaces it did (a steel mug's handle gave no echo at all in the emulator),
+    and the lines range from where the first look stood (US reaches 40 mm)."""
+    X_R, n = np.asarray(X_R, float), np.asarray(n, float)
+    if plan.modality != "us":
+        return OutlineKeepOut(outline, X_R, n)
+    margin = OutlineKeepOut.margin_mm
+    R = max(plan.radius_mm + plan.standoff_mm - margin - CLEARANCE_MM, plan.radius_mm)
+    stood = Outline(outline.phi_step_deg, outline.z_edges_mm, np.full_like(outline.r_mm, R),
+                    R, outline.height_mm, outline.max_gap)
+    return OutlineKeepOut(stood, X_R, n, margin)
+
+
 def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: np.ndarray,
                   n: np.ndarray, X_R: np.ndarray, v_mm_s: float, accel_mm_s2: float,
                   junction_deviation_mm: float, first_line: int) -> list[Point]:
     """The follow lines' points in execution order (angle by angle, level by level, X back
     and forth), lines numbered from first_line: per line the columns where the beam meets
-    the outline and EDGE_COLUMNS either side, Y from follow_y."""
+    the outline and EDGE_COLUMNS either side, Y from follow_y, no nearer than
+    follow_keep_out allows."""
     v = np.asarray(v, float) / np.linalg.norm(v)
-    keep = OutlineKeepOut(outline, np.asarray(X_R, float), np.asarray(n, float))
+    keep = follow_keep_out(plan, outline, X_R, n)
     half = plan.radius_mm + EDGE_COLUMNS * plan.step_mm
     xs_all = X_R[0] + np.arange(-half, half + 1e-9, plan.step_mm)
     pts: list[Point] = []

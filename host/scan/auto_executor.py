@@ -24,6 +24,7 @@ from .auto import (
     far_look_plan,
     first_look_plan,
     first_look_points,
+    follow_keep_out,
     follow_points,
     hole_lines,
     no_surface_reason,
@@ -40,7 +41,7 @@ from .fly_executor import (
     line_path,
     run_fly_scan,
 )
-from .outline import Outline, OutlineKeepOut, check_moves, outline_from_points
+from .outline import Outline, check_moves, outline_from_points
 from .plan import AUTO_SPACING_MM, PlanError, Point, ScanPlan, keep_outs
 from .reconstruct import object_points, stage_points
 from .scanfile import ScanWriter
@@ -115,7 +116,7 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
         p.index = len(look) + i
     here = _line_targets(fly_lines(look)[-1], first_look_plan(plan), machine)[0][-1]
     pts, via, skipped = _safe_lines(look, pts, here, plan, machine,
-                                    [OutlineKeepOut(outline, X_R, n), turntable])
+                                    [follow_keep_out(plan, outline, X_R, n), turntable])
     return AutoPlan(outline, angles, share, pts, via, skipped=skipped)
 
 
@@ -241,7 +242,7 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
         return [], {}, share
     here = _line_targets(fly_lines(look + auto.points)[-1], plan, machine)[0][-1]
     pts, via, skipped = _safe_lines(look + auto.points, pts, here, plan, machine,
-                                    [OutlineKeepOut(outline, X_R, n), turntable])
+                                    [follow_keep_out(plan, outline, X_R, n), turntable])
     auto.skipped += skipped
     return pts, via, share
 

@@ -93,6 +93,20 @@ def test_an_oblique_oa_pulse_is_read_by_the_window_and_a_steel_echo_as_us():
     assert np.isnan(unsure["oa"][0]) and np.isnan(unsure["us"][0])
 
 
+def test_a_one_modality_plan_reads_its_lone_pulses_only_within_the_window():
+    """A "us" plan reads a lone pulse as a US echo: a steel can's paper label gives an OA
+    pulse (no US echo at 40 deg), which read as US lies at about half its distance, nearer
+    than anything in the bounding volume. With the window the US echo is searched for only
+    within it, so the OA pulse 30 mm away gives no US point (without it: one 15 mm off)."""
+    wave, phase, truth, both = cell_waveform("plastic", 30.0, 40.0)
+    us = PointRanger(both.setup, both.n, both.tick_hz, "us", (both.lo, both.hi))
+    blind = us(wave, phase, 0, None)
+    assert abs(blind["us"][0] - both.other_reading_mm("oa", truth)) < 1.0  # the misreading
+    assert np.isnan(us(wave, phase, 0, None, window=(20.0, 60.0))["us"][0])
+    wave, phase, truth, _ = cell_waveform("steel", 20.0, 0.0)  # a real echo in the window
+    assert abs(us(wave, phase, 0, None, window=(10.0, 60.0))["us"][0] - truth) < 0.5
+
+
 V = np.array([0.0656, 0.9955, -0.0678]) / np.linalg.norm([0.0656, 0.9955, -0.0678])
 N = np.array([-0.0007, 0.0022, 0.9999]) / np.linalg.norm([-0.0007, 0.0022, 0.9999])
 X_R = np.array([235.21, 288.17, 0.0])

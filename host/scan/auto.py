@@ -382,10 +382,11 @@ def follow_points(plan: ScanPlan, outline: Outline, angles_deg: list[float], v: 
                 pts.append(Point(len(pts), float(xs[ci]), float(y[ci]), float(X_R[2] + h),
                                  float(th), li, ci, ai, first_line + k, float(expect[ci])))
             k += 1
-    if pts:
+    if pts:  # a US-only outline may miss what stands before it: the cylinder's window
         S = np.array([[p.x, p.y, p.z] for p in pts], float)
-        near, far = outline_window(S, np.array([p.theta_deg for p in pts]), outline, v, n,
-                                   X_R)
+        near, far = cylinder_window(S, v, n, X_R, outline.radius_mm, outline.height_mm) \
+            if plan.modality == "us" else outline_window(
+                S, np.array([p.theta_deg for p in pts]), outline, v, n, X_R)
         for p, a, b in zip(pts, near, far):
             p.window_mm = (float(a), float(b))
     return pts

@@ -263,6 +263,17 @@ def test_a_first_look_of_lone_pulses_names_the_modality_not_the_objects_place():
                                 (quiet, np.where(np.arange(n) < 5, 35.0, 9.0), "both")):
         msg = no_surface_reason(snr_oa, snr_us, nan, nan, mod)
         assert "modality" not in msg and "on the table" in msg, msg
+    # a first look that saw a few points (a steel can's flanks) but more lone pulses: the
+    # scan goes on with a note that says the same; none where it ranged more than that
+    from dmdsm.host.scan.auto import one_modality_note
+
+    few = nan.copy()
+    few[:20] = 30.0
+    assert 'modality = "us"' in one_modality_note(loud, quiet, nan, few, "both")
+    many = nan.copy()
+    many[:200] = 30.0
+    assert one_modality_note(loud, quiet, many, many, "both") is None
+    assert one_modality_note(loud, quiet, nan, few, "us") is None
 
 
 def test_a_us_only_plan_follows_from_the_first_looks_distance():

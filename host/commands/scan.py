@@ -140,6 +140,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
                   f"outline (the rest kept the bounding cylinder and is not counted)")
             for why in a["lines_left_out"]:  # said, not hidden
                 print(f"auto: a line was left out: {why}")
+            for note in a["notes"]:
+                print(f"auto: note: {note}")
     if run.auto and not args.no_model:
         _build_model(args.db, plan.object_id, args.classifier, args.json)
     return 0

@@ -43,6 +43,20 @@ LONE_PULSES_SHARE = 0.02  # object answering in one modality (no_surface_reason)
 TABLE_CLEAR_MM = 1.0      # a first-look surface lies at least this far above the table
 
 
+def _lone_pulses(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.ndarray,
+                 d_us_mm: np.ndarray) -> tuple[int, int, int]:
+    """(waveforms, waveforms with a pulse of LONE_PULSE_DB or more and no distance, waveforms
+    with a distance) of a first look (per waveform: SNR dB and distance mm or NaN)."""
+    snr = np.fmax(np.asarray(snr_oa_db, float), np.asarray(snr_us_db, float))
+    ranged = np.isfinite(d_oa_mm) | np.isfinite(d_us_mm)
+    return len(snr), int(((snr >= LONE_PULSE_DB) & ~ranged).sum()), int(ranged.sum())
+
+
+_ONE_MODALITY = ("an object that answers in one modality? steel and glass give no OA pulse: "
+                 "set modality = \"us\" in the plan; foam gives no US echo: modality = "
+                 "\"oa\"")
+
+
 def no_surface_reason(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.ndarray,
                       d_us_mm: np.ndarray, modality: str) -> str:
     """What to tell the operator when a first look's waveforms (per waveform: SNR dB and
@@ -51,19 +65,27 @@ def no_surface_reason(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.
     modality (steel and glass give no OA pulse, foam no US echo) leaves its waveforms full
     of pulses and its outline empty, and the way out is the plan's modality, not the
     object's place."""
-    snr = np.fmax(np.asarray(snr_oa_db, float), np.asarray(snr_us_db, float))
-    lone = (snr >= LONE_PULSE_DB) & ~np.isfinite(d_oa_mm) & ~np.isfinite(d_us_mm)
-    n, k = len(snr), int(lone.sum())
+    n, k, _ = _lone_pulses(snr_oa_db, snr_us_db, d_oa_mm, d_us_mm)
     if modality == "both" and k >= max(LONE_PULSES_MIN, LONE_PULSES_SHARE * n):
         return (f"the first look saw no surface at the plan's levels: {k} of its {n} "
-                f"waveforms carried a pulse "
-                f"(>= {LONE_PULSE_DB:g} dB) but none an OA and US pair, and a lone pulse "
-                f"cannot be told OA or US here: an object that answers in one modality? "
-                f"steel and glass give no OA pulse: set modality = \"us\" in the plan; foam "
-                f"gives no US echo: modality = \"oa\"")
+                f"waveforms carried a pulse (>= {LONE_PULSE_DB:g} dB) it could not tell OA "
+                f"or US (no OA and US pair): {_ONE_MODALITY}")
     return (f"the first look saw no surface at the plan's levels ({n} waveforms, {k} with "
             f"a pulse of >= {LONE_PULSE_DB:g} dB): is the object on the table, within "
             f"radius_mm and height_mm of the plan, and levels_mm within its height?")
+
+
+def one_modality_note(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.ndarray,
+                      d_us_mm: np.ndarray, modality: str) -> str | None:
+    """A note for the operator when a "both" plan's first look saw some surface but left
+    more waveforms with a lone pulse it could not read than it ranged (a one-modality
+    object whose flanks or foot gave a few readable pulses): the scan goes on, with few
+    points; None otherwise."""
+    n, k, found = _lone_pulses(snr_oa_db, snr_us_db, d_oa_mm, d_us_mm)
+    if modality != "both" or k < max(LONE_PULSES_MIN, LONE_PULSES_SHARE * n) or k <= found:
+        return None
+    return (f"the first look ranged {found} of its {n} waveforms and could not tell OA or US "
+            f"on {k} that carried a pulse: {_ONE_MODALITY}")
 
 
 def far_look_standoff_mm(plan: ScanPlan) -> float:

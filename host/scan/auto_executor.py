@@ -28,6 +28,7 @@ from .auto import (
     follow_points,
     hole_lines,
     no_surface_reason,
+    one_modality_note,
 )
 from .common import Progress, ScanStats
 from .coverage import coverage, covered_mask
@@ -64,6 +65,7 @@ class AutoPlan:
     hole_points: list[Point] = field(default_factory=list)  # the lines scanned again
     skipped: list[str] = field(default_factory=list)  # lines left out: no safe move to them
     far_points: list[Point] = field(default_factory=list)  # the far look's (first look's)
+    notes: list[str] = field(default_factory=list)  # for the operator: what may be wrong
 
 
 def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
@@ -101,12 +103,13 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
     outline = first_look_outline(writer, n_look, plan, calibration)
     rows = outline.rows_at(np.asarray(plan.levels_mm, float) + plan.standoff_mm * v[2]
                            / np.linalg.norm(v))
+    d, m = writer.data, writer.n_done
+    sel = d["point_index"][:m] < n_look
+    look_data = [d[k][:m][sel] for k in ("snr_oa_db", "snr_us_db", "distance_oa_mm",
+                                         "distance_us_mm")]
     if not outline.closed()[:, rows].any():  # nothing to follow where the plan scans
-        d, m = writer.data, writer.n_done
-        sel = d["point_index"][:m] < n_look
-        raise PlanError(no_surface_reason(
-            *(d[k][:m][sel] for k in ("snr_oa_db", "snr_us_db", "distance_oa_mm",
-                                      "distance_us_mm")), plan.modality))
+        raise PlanError(no_surface_reason(*look_data, plan.modality))
+    note = one_modality_note(*look_data, plan.modality)
     angles, share = choose_angles(outline, plan.angles_deg, v, n, plan.max_incidence_deg,
                                   plan.max_angles)
     speed, accel = fly_speed(plan, machine)
@@ -117,7 +120,8 @@ def plan_follow(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibrati
     here = _line_targets(fly_lines(look)[-1], first_look_plan(plan), machine)[0][-1]
     pts, via, skipped = _safe_lines(look, pts, here, plan, machine,
                                     [follow_keep_out(plan, outline, X_R, n), turntable])
-    return AutoPlan(outline, angles, share, pts, via, skipped=skipped)
+    return AutoPlan(outline, angles, share, pts, via, skipped=skipped,
+                    notes=[note] if note else [])
 
 
 class _LineUnsafe(Exception):

@@ -1,8 +1,9 @@
 """An auto scan of an object that answers in one modality only, in hil_sim: steel gives a US
 echo and no OA pulse, so a "both" plan's first look hears a lone pulse on its waveforms that
-it cannot tell OA or US (host/ranging/point.py) and sees no surface. `dmdsm scan` stops
-with one line that says to set modality = "us" (not where to put the object, and not a
-traceback); the plan changed so scans the can."""
+it cannot tell OA or US (host/ranging/point.py) and sees little or no surface. `dmdsm scan`
+says to set modality = "us" (one line, not where to put the object, and not a traceback):
+as its error where the first look saw nothing, as a note where it saw a little; the plan
+changed so scans the can."""
 
 import subprocess
 
@@ -33,10 +34,17 @@ def test_a_steel_can_in_a_both_plan_is_told_to_scan_us_and_then_scans(emulator, 
     r = subprocess.run(scan_cmd(emu, tmp_path, "both", "--no-model"), capture_output=True,
                        text=True, timeout=900)
     err = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert err[-1].startswith("dmdsm: error: the first look saw no surface") and \
-        'set modality = "us"' in err[-1], r.stderr
-    assert "run the same command" not in r.stderr  # it would stop there again
+    assert "Traceback" not in r.stderr, r.stderr
+    # where its far look read a few lone echoes of the can's flanks by the window (about
+    # one run in two), the scan goes on and says the same in a note; else it stops
+    if r.returncode == 0:
+        assert 'auto: note: the first look ranged' in r.stdout and \
+            'set modality = "us"' in r.stdout, r.stdout
+    else:
+        assert r.returncode == 2 and err[-1].startswith(
+            "dmdsm: error: the first look saw no surface") and \
+            'set modality = "us"' in err[-1], r.stderr
+        assert "run the same command" not in r.stderr  # it would stop there again
     plan = ScanPlan("steel_can", "steel", modality="us", **PLAN)
     run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
     assert run.status == "complete" and run.auto["lines"] > 0, run.auto

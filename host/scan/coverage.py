@@ -66,4 +66,3 @@ def laser_duty(stored_waveforms: int, average: int, laser_hz: float, duration_s:
     if fired <= 0:
         return float("nan")
     return float(min(stored_waveforms * average / fired, 1.0))
-

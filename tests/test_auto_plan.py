@@ -297,3 +297,19 @@ def test_a_us_only_plan_follows_from_the_first_looks_distance():
     assert not k_us.inside(at(31.0 + 8.0 + 0.01), 0.0).any()
     assert not k_both.inside(at(31.0 + 2.5), 0.0).any()   # the outline (the box) + 2 mm
     assert k_both.inside(at(14.0), 0.0).all()             # the box's own half-depth is 15
+
+
+def test_a_hole_lines_time_counts_the_table_turn_and_the_rise_to_its_row():
+    """The rescan budget is spent by the lines' estimated time; each hole line is at its own
+    table angle and row, so the estimate adds a move of the table (90 deg) and of Z (one
+    outline row): a trapezoid at the axis' feed and acceleration, a triangle where the move
+    is too short to reach the feed, the two equal where they meet."""
+    from dmdsm.host.scan.auto_executor import move_s
+
+    assert move_s(90.0, 90.0, 200.0) == pytest.approx(90 / 90 + 90 / 200)  # A: 1.45 s
+    assert move_s(6.0, 25.0, 50.0) == pytest.approx(2 * math.sqrt(6 / 50))  # Z: a triangle
+    assert move_s(25.0 ** 2 / 50.0, 25.0, 50.0) == pytest.approx(2 * 25.0 / 50.0)
+    assert move_s(0.0, 25.0, 50.0) == 0.0
+    d = np.linspace(0.01, 200.0, 500)
+    t = np.array([move_s(x, 25.0, 50.0) for x in d])
+    assert np.all(np.diff(t) > 0) and np.all(t >= d / 25.0)  # longer moves take longer

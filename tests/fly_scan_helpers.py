@@ -42,6 +42,22 @@ def setup(emu, tmp_path, angles=(0.0, 90.0)):
     return ranging, cal, text, plan
 
 
+def ranged_then(emulator, tmp_path, scene, seed):
+    """The ranging calibration on the gauge block (its own emulator, stopped after), then
+    an emulator of `scene` and its true v, n, X_R as a calibration dict and TOML text
+    (written to tmp_path/cal.toml): (ranging, emulator, cal, text)."""
+    block = emulator(speed=20.0, scene="aluminium_block", seed=seed)
+    ranging, _, _, _ = setup(block, tmp_path)
+    block.stop()
+    emu = emulator(speed=4.0, scene=scene, seed=seed)
+    s = emu.sim.scene
+    cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
+           "X_R": s.X_R.tolist()}
+    text = "[calibration]\n" + "".join(f"{k} = {v}\n" for k, v in cal.items())
+    (tmp_path / "cal.toml").write_text(text)
+    return ranging, emu, cal, text
+
+
 def record_poses(sim):
     """Every laser shot's device tick, true sensor position (X, Y, Z) and table angle."""
     shots = []

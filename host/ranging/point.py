@@ -119,18 +119,17 @@ class PointRanger:
         ph = phase_ticks / self.tick_hz
         mods = [m for m in ("oa", "us") if m in self.filters]
         corr = {m: self.filters[m].correlate(x) for m in mods}  # one FFT pair a modality
-        wide = {m: self._range(m, corr, self.lo, self.hi, ph, pretrigger) for m in mods}
-        out = {m: (np.nan, wide[m][1]) for m in mods}
-        if self.modality != "both" and window is not None and np.all(np.isfinite(window)):
+        gate = {m: (self.lo, self.hi) for m in mods}
+        if self.modality in gate and window is not None and np.all(np.isfinite(window)):
             # a one-modality plan reads every lone pulse as its own: only where the window
             # allows it (nothing lies nearer than its near end or beyond its far end), so a
             # steel can's paper label's OA pulse is not read as a US echo at half its distance
-            m = self.modality
-            if m in wide:
-                lo = max(self.lo, window[0] - WINDOW_MARGIN_MM)
-                hi = min(self.hi, window[1] + WINDOW_MARGIN_MM)
-                wide[m] = self._range(m, corr, lo, hi, ph, pretrigger) if lo < hi else (
-                    np.nan, wide[m][1])
+            gate[self.modality] = (max(self.lo, window[0] - WINDOW_MARGIN_MM),
+                                   min(self.hi, window[1] + WINDOW_MARGIN_MM))
+        wide = {m: self._range(m, corr, lo, hi, ph, pretrigger) if lo < hi else
+                (np.nan, self._range(m, corr, self.lo, self.hi, ph, pretrigger)[1])
+                for m, (lo, hi) in gate.items()}
+        out = {m: (np.nan, wide[m][1]) for m in mods}
         if len(mods) < 2:
             m = mods[0]
             if self.modality in ("both", m):

@@ -9,7 +9,7 @@ true pear."""
 import time
 
 import numpy as np
-from fly_scan_helpers import record_poses, scan_in_process, setup
+from fly_scan_helpers import ranged_then, record_poses, scan_in_process
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.scan.plan import ScanPlan
@@ -19,14 +19,7 @@ from dmdsm.host.scan.scanfile import read_scan
 
 
 def test_the_first_look_outlines_the_bottom_of_a_pear(emulator, tmp_path):
-    block = emulator(speed=20.0, scene="aluminium_block", seed=31)
-    ranging, _, _, _ = setup(block, tmp_path)  # ranging measured on the gauge block
-    block.stop()
-    emu = emulator(speed=4.0, scene="pear", seed=31)
-    s = emu.sim.scene
-    cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
-           "X_R": s.X_R.tolist()}
-    text = "[calibration]\n" + "".join(f"{k} = {v}\n" for k, v in cal.items())
+    ranging, emu, cal, text = ranged_then(emulator, tmp_path, "pear", 31)
     # one level 6 mm up, where the pear is 11-20 mm across in a 37 mm cylinder; the first
     # look at 10 mm (and 20 mm rows); the follow lines at two table angles at most, no rescans
     plan = ScanPlan("pear", "apple", radius_mm=37.3, height_mm=110.0, levels_mm=[6.0],

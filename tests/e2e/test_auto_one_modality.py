@@ -8,7 +8,7 @@ changed so scans the can."""
 import subprocess
 
 import numpy as np
-from fly_scan_helpers import scan_cmd, scan_in_process, setup
+from fly_scan_helpers import ranged_then, scan_cmd, scan_in_process
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.scan.plan import ScanPlan
@@ -21,15 +21,7 @@ PLAN = dict(radius_mm=38.0, height_mm=110.0, levels_mm=[15.0], angles_deg=[0.0],
 
 
 def test_a_steel_can_in_a_both_plan_is_told_to_scan_us_and_then_scans(emulator, tmp_path):
-    block = emulator(speed=20.0, scene="aluminium_block", seed=41)
-    ranging, _, _, _ = setup(block, tmp_path)  # ranging measured on the gauge block
-    block.stop()
-    emu = emulator(speed=4.0, scene="steel_can", seed=41)
-    s = emu.sim.scene
-    cal = {"v": (s.v / np.linalg.norm(s.v)).tolist(), "n": (s.n / np.linalg.norm(s.n)).tolist(),
-           "X_R": s.X_R.tolist()}
-    text = "[calibration]\n" + "".join(f"{k} = {v}\n" for k, v in cal.items())
-    (tmp_path / "cal.toml").write_text(text)
+    ranging, emu, cal, text = ranged_then(emulator, tmp_path, "steel_can", 41)
     (tmp_path / "plan.toml").write_text(ScanPlan("steel_can", "steel", **PLAN).to_toml())
     r = subprocess.run(scan_cmd(emu, tmp_path, "both", "--no-model"), capture_output=True,
                        text=True, timeout=900)

@@ -10,11 +10,11 @@ Each: records/s, lost (shot-id gaps + the board's loss counters), latency p50/p9
 laser edge (the emulator's truth) to the record leaving the generator and to its last
 message (/dmdsm/distance/us, after the waveform, the ranges and the OA distance) arriving
 at a foxglove.websocket.v1 client in its own process (as Foxglove is), beyond the frame's
-own time on the wire (2088 bytes at 200 kB/s), and from the frame's last byte leaving the
-board (p50, p99 after the first second of the stream, and that second's worst: the
-emulator's start-up); CPU per record (this process: reader, ranging, encoding, server; not
-the client's); the host stamps against the truth (RMS z of error / reported sigma). Beside
-it, the plain `acquire` path for as many waveforms.
+own time on the wire (at most 2106 bytes at 200 kB/s: `waveform_wire_bytes`), and from
+the frame's last byte leaving the board (p50, p99 after the first second of the stream,
+and that second's worst: the emulator's start-up); CPU per record (this process: reader,
+ranging, encoding, server; not the client's); the host stamps against the truth (RMS z of
+error / reported sigma). Beside it, the plain `acquire` path for as many waveforms.
 """
 
 from __future__ import annotations
@@ -137,7 +137,9 @@ def figures(raw: dict, t: dict, n_average: int) -> dict:
     ticks = np.array([r.device_ticks for r in recs], dtype=float)
     laser = truth(t, ticks)
     last_edge = laser + (n_average - 1) / REP_HZ
-    wire = 2088 / LINK_BYTES_PER_S
+    from dmdsm.host.links.link_rate import waveform_wire_bytes
+
+    wire = waveform_wire_bytes(1024) / LINK_BYTES_PER_S  # within 10 B of the frame's own
     sent = np.array([t["sent"].get(r.device_ticks, np.nan) for r in recs])
     err = np.array([r.host_s for r in recs]) - laser
     std = np.array([r.host_std_s for r in recs])

@@ -3,6 +3,7 @@ parameters (hil_sim/boards/interface.py). A board that renames or drops one fail
 
 import inspect
 
+import numpy as np
 import pytest
 
 from dmdsm.sim.boards.interface import SensorBoardInterface, StageBoardInterface
@@ -96,3 +97,43 @@ def test_the_sensor_emulator_computes_samples_only_for_the_shots_its_core_averag
     # the shots of every waveform sent were computed; beyond them only those of the
     # waveforms still waiting in the board's two slots and of one open average
     assert len(waves) * n_average <= len(computed) <= (len(waves) + 3) * n_average
+
+
+def test_an_averaged_waveform_takes_its_full_time_on_the_wire_after_its_last_shot():
+    """With 16 shots averaged the link idles ~6 ms between waveforms; an idle UART saves no
+    time, so each frame's last byte leaves no sooner than its bytes' time at 2 Mbaud after
+    the last averaged shot (the live bench's latency beyond the wire was negative when the
+    emulator let a frame start on credit saved while idle)."""
+    from dmdsm.protocol import FrameDecoder, Message, encode_frame
+    from dmdsm.sim.boards.sensor.core_board import TICK_HZ
+
+    sim = Simulation(SimConfig(seed=2))
+    decoder = FrameDecoder()
+
+    def ask(msg: Message, want: str) -> Message:
+        sim.write("sensor", encode_frame(msg))
+        for _ in range(100):
+            sim.advance(0.001)
+            got = [m for m in decoder.feed(sim.read("sensor")) if m.name == want]
+            if got:
+                return got[0]
+        raise AssertionError(f"no {want}")
+
+    cfg = ask(Message("get_config", seq=1), "config")
+    fields = {k: getattr(cfg, k) for k in ("n_samples", "sample_rate_div", "pretrigger",
+                                           "trigger_edge", "modality", "sample_format",
+                                           "trigger_timeout_ms")}
+    fields.update(n_samples=1024, n_average=16)
+    ask(Message("set_config", seq=2, **fields), "ack")
+    sim.write("sensor", encode_frame(Message("arm", seq=3, n_shots=0)))
+    late = []
+    while len(late) < 20:
+        sim.advance(2e-4)
+        for m in decoder.feed(sim.read("sensor")):
+            if m.name == "waveform":
+                wire = len(encode_frame(m)) / 200_000.0
+                last_shot = m.timestamp / TICK_HZ + 15e-3
+                late.append(sim.t - last_shot - wire)
+    late_ms = np.array(late[1:]) * 1e3
+    assert late_ms.min() >= -0.3, late_ms  # never ahead of the wire (a step's slack)
+    assert late_ms.max() <= 1.5, late_ms  # and not held back beyond one shot period

@@ -198,6 +198,11 @@ class SensorBoard:
             data = self.core.tx(n)
             self.link_credit -= len(data)
             self._out += data
+            if len(data) < n:
+                # the queue ran dry: the wire idles from here, and an idle UART saves no
+                # time, so the next frame (queued at a shot, after this drain) takes its
+                # full time on the wire, not a head start of the idle gap
+                self.link_credit = 0.0
 
     def step(self, now: float) -> bytes:
         """Advance to `now` and return what the link carries to the host meanwhile."""

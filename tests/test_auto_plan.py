@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from dmdsm.host.scan.auto import (
     beam_hits_y,
     choose_angles,
-    first_look_plan,
     follow_points,
     follow_y,
     incidence_cos,
 )
+from dmdsm.host.scan.first_look import first_look_plan
 from dmdsm.host.scan.fly import LinePath, junction_speed_mm_s
 from dmdsm.host.scan.fly_executor import fly_lines
 from dmdsm.host.scan.outline import Outline, OutlineKeepOut
@@ -221,8 +221,8 @@ def test_a_line_no_checked_move_reaches_is_left_out_and_said_not_the_scan():
     """A line (or the way to it) the checks refuse is left out with its one-line reason;
     the lines after it are numbered on without a gap (resuming counts on that)."""
     from dmdsm.host.links.safety import KeepOut
-    from dmdsm.host.scan.auto import first_look_points
     from dmdsm.host.scan.auto_executor import _safe_lines
+    from dmdsm.host.scan.first_look import first_look_points
 
     o = bottle_outline()
     plan = ScanPlan("bottle", radius_mm=36.0, height_mm=100.0, levels_mm=[30.0, 80.0],
@@ -249,7 +249,7 @@ def test_a_first_look_of_lone_pulses_names_the_modality_not_the_objects_place():
     """A "both" plan's first look of steel (no OA pulse) hears echoes it cannot read: the
     error says to set the modality; a first look that heard nothing asks where the object
     is; a one-modality plan never gets the modality advice."""
-    from dmdsm.host.scan.auto import no_surface_reason
+    from dmdsm.host.scan.first_look import no_surface_reason
 
     n = 400
     nan = np.full(n, np.nan)
@@ -265,7 +265,7 @@ def test_a_first_look_of_lone_pulses_names_the_modality_not_the_objects_place():
         assert "modality" not in msg and "on the table" in msg, msg
     # a first look that saw a few points (a steel can's flanks) but more lone pulses: the
     # scan goes on with a note that says the same; none where it ranged more than that
-    from dmdsm.host.scan.auto import one_modality_note
+    from dmdsm.host.scan.first_look import one_modality_note
 
     few = nan.copy()
     few[:20] = 30.0

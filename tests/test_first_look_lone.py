@@ -119,7 +119,7 @@ def test_the_window_is_where_the_beam_is_inside_the_bounding_cylinder(radius, he
     """cylinder_window's (near, far) bound exactly the beam's stretch inside the cylinder
     (radius, 1 mm above the table .. height): sampled along the beam, every point inside
     lies between them and the ends are on its boundary."""
-    from dmdsm.host.scan.auto import TABLE_CLEAR_MM, cylinder_window
+    from dmdsm.host.scan.first_look import TABLE_CLEAR_MM, cylinder_window
     from dmdsm.host.scan.reconstruct import table_frame
 
     S = X_R + np.array([u * radius, -(radius + back), z])
@@ -141,7 +141,7 @@ def test_a_both_plan_looks_again_from_as_far_out_as_its_radius_where_the_outline
     open, a "both" plan looks again from the cylinder's radius away (at most 48 mm), each
     beam with its window: a lone OA pulse is then told from a US echo from the cylinder's
     front to its axis. "oa" and "us" plans (a lone pulse is theirs) do not."""
-    from dmdsm.host.scan.auto import (
+    from dmdsm.host.scan.first_look import (
         far_look_levels,
         far_look_plan,
         first_look_plan,

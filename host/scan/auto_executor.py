@@ -20,18 +20,20 @@ from ..ranging.point import PointRanger
 from .auto import (
     US_MAX_INCIDENCE_DEG,
     choose_angles,
+    follow_keep_out,
+    follow_points,
+    hole_lines,
+)
+from .common import Progress, ScanStats
+from .coverage import coverage, covered_mask
+from .first_look import (
     far_look_levels,
     far_look_plan,
     first_look_plan,
     first_look_points,
-    follow_keep_out,
-    follow_points,
-    hole_lines,
     no_surface_reason,
     one_modality_note,
 )
-from .common import Progress, ScanStats
-from .coverage import coverage, covered_mask
 from .fly import ramp_mm
 from .fly_executor import (
     TRANSITION_MM,
@@ -294,7 +296,7 @@ def _stored_points(writer: ScanWriter, n_lines: float, calibration: dict,
 def plan_far_look(writer: ScanWriter, look: list[Point], plan: ScanPlan, calibration: dict,
                   machine: MachineLimits, turntable: KeepOut
                   ) -> tuple[list[Point], dict[int, list[Waypoint]], ScanPlan | None]:
-    """The far look (auto.far_look_levels) after the first look's lines in the file: its
+    """The far look (first_look.far_look_levels) after the first look's lines in the file: its
     points (lines and indices numbered on), their ways by line index and its plan; every
     move of it, from where the first look ends, checked against the bounding cylinder and
     the turntable (raises UnsafeMove). Nothing if the outline needs none."""

@@ -25,11 +25,11 @@ from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from ..version import __version__
-from .auto import first_look_plan, first_look_points
 from .auto_executor import outline_coverage, run_auto_scan
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan
+from .first_look import first_look_plan, first_look_points
 from .fly_executor import fly_lines, line_ends, run_fly_scan
 from .plan import (
     AUTO_SPACING_MM,

@@ -12,7 +12,7 @@ import numpy as np
 from fly_scan_helpers import record_poses, scan_cmd, scan_in_process, setup
 
 from dmdsm.host.links.sensor import SensorClient
-from dmdsm.host.scan.auto import first_look_plan
+from dmdsm.host.scan.first_look import first_look_plan
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points

@@ -1,9 +1,10 @@
 """`dmdsm live` against the emulator: records/s, losses, latency, CPU and stamp error.
 
-    python bench/live.py [--minutes 10] [--quick]
+    python bench/live.py [--minutes 10] [--quick] [--pin]
 
 The emulator runs in a child process (as `dmdsm sim` would: its physics does not share the
-host's interpreter lock), real time, 7 mm in front of the aluminium block. Two rates, each
+host's interpreter lock; with --pin on a core of its own, as the board's processor is not
+the host's), real time, 7 mm in front of the aluminium block. Two rates, each
 for --minutes: the link's limit (1024 samples, no averaging: the board skips the laser shots
 it has no slot for, ~95 waveforms/s at 2 Mbaud) and on-board averaging (16 shots, 62.5/s).
 Each: records/s, lost (shot-id gaps + the board's loss counters), latency p50/p99 from the
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
 import sys
 import time
 from contextlib import closing
@@ -35,8 +37,11 @@ LAST_TOPIC = "/dmdsm/distance/us"  # a record's last message (no model): when it
 REP_HZ = 1000.0
 
 
-def emulator_child(conn: object) -> None:
-    """Serve the emulator here until told to stop; send back its truth times."""
+def emulator_child(conn: object, cpu: int | None = None) -> None:
+    """Serve the emulator here until told to stop; send back its truth times. cpu: the one
+    core it runs on (--pin), as the board's own processor is not the host's."""
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
     from live_helpers import EmulatorTimes
 
     from dmdsm.sim.servers.emulator import Emulator
@@ -174,6 +179,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="per rate (default 10)")
     ap.add_argument("--quick", action="store_true", help="~30 s in all")
+    ap.add_argument("--pin", action="store_true",
+                    help="run the emulator on the last core alone, the host and the client "
+                         "on the others (as the board's processor is not the host's)")
     args = ap.parse_args()
     seconds = 10.0 if args.quick else args.minutes * 60
     from dmdsm.host.links.stage import StageClient
@@ -182,17 +190,23 @@ def main() -> None:
 
     ctx = mp.get_context("spawn")
     here, there = ctx.Pipe()
-    child = ctx.Process(target=emulator_child, args=(there,), daemon=True)
+    cores = sorted(os.sched_getaffinity(0))
+    pin = cores[-1] if args.pin and len(cores) > 1 else None
+    child = ctx.Process(target=emulator_child, args=(there, pin), daemon=True)
     child.start()
     sensor, stage = here.recv()
+    if pin is not None:  # the host (and the client it starts) off the emulator's core
+        os.sched_setaffinity(0, set(cores) - {pin})
     try:
         with StageClient(stage) as st:
             st.home()
             st.move(x=235, y=266, z=20, wait=True)
             st.wait()
         setup = true_setup(SensorModel())
-        print(f"dmdsm live bench: emulator in a child process, real time; {seconds:.0f} s "
-              f"per rate")
+        where = f"alone on core {pin}, the host on {sorted(set(cores) - {pin})}" \
+            if pin is not None else "sharing the host's cores"
+        print(f"dmdsm live bench: emulator in a child process ({where}), real time; "
+              f"{seconds:.0f} s per rate")
         for name, n_avg in (("link limit (1024 samples, no averaging)", 1),
                             ("on-board averaging (16 shots)", 16)):
             here.send("start")

@@ -68,6 +68,19 @@ def test_an_object_may_have_its_own_modality(tmp_path):
         parse_campaign(OBJ + "modality = \"sonar\"\n", tmp_path / "c.toml")
 
 
+def test_an_object_off_its_footprints_centre_gives_its_reach(tmp_path):
+    """A mug stands centred by its body, its handle farther from the table axis than its
+    footprint's half-diagonal: reach_mm makes the bounding cylinder (the first look's
+    keep-out) the handle's, not the footprint's."""
+    mug = OBJ.replace("[80.0, 80.0, 95.0]", "[117.0, 80.0, 95.0]")
+    plain = parse_campaign(mug, tmp_path / "c.toml")
+    assert plain.objects[0].reach_mm is None
+    assert plain.plan(plain.objects[0]).radius_mm == 71.9  # half the diagonal, + 1
+    c = parse_campaign(mug + "reach_mm = 73.5\n", tmp_path / "c.toml")
+    assert c.objects[0].reach_mm == 73.5 and c.plan(c.objects[0]).radius_mm == 74.5
+    assert parse_campaign(c.to_toml(), tmp_path / "c.toml") == c
+
+
 def test_the_defaults_and_the_campaign_table_is_optional():
     c = parse_campaign(OBJ)
     assert (c.mode, c.modality, c.classifier) == ("auto", "both", None)
@@ -128,6 +141,9 @@ BAD = [
     (OBJ + 'levels_mm = ["20"]\n', "levels_mm[0] is text ('20'): write the number without"),
     (OBJ + "levels_mm = [20.0, 120.0]\n", "above the object's height (95 mm"),
     (OBJ + "levels_mm = [-2.0]\n", "levels_mm[0] must be a positive"),
+    (OBJ + 'reach_mm = "50"\n', "reach_mm is text ('50'): write the number without quotes"),
+    (OBJ + "reach_mm = 30.0\n", "is less than half the object's width or depth (40 mm)"),
+    (OBJ + "reach_mm = 1e6\n", "reach_mm = 1e+06 mm is more than the machine's longest"),
     ("[[object]\nid = 1\n", "is not valid TOML"),
     ("x = " + "[" * 100_000, "nests arrays or tables too deeply"),
     ("x = " + "{a=" * 100_000, "nests arrays or tables too deeply"),
@@ -182,7 +198,9 @@ def campaigns(draw):
         objs.append(CampaignObject(oid, draw(PRINTABLE), size, draw(st.booleans()),
                                    draw(st.text(max_size=40)),
                                    draw(st.one_of(st.just(""), PRINTABLE)), levels,
-                                   draw(st.sampled_from(("",) + MODALITIES))))
+                                   draw(st.sampled_from(("",) + MODALITIES)),
+                                   draw(st.one_of(st.none(), st.floats(
+                                       max(size[:2]) / 2, max(size[:2]) / 2 + 80)))))
     classifier = draw(st.one_of(st.none(), PRINTABLE.filter(lambda s: "\x00" not in s).map(
         lambda s: Path("/models") / s.strip())))
     return Campaign(tuple(objs), classifier, draw(st.sampled_from(MODES)),

@@ -52,6 +52,23 @@ def test_plan_new_scans_a_one_modality_material_in_its_modality(tmp_path):
     assert r.returncode == 0 and load_plan(tmp_path / "asked.toml").modality == "both"
 
 
+def test_plan_new_takes_the_reach_of_an_object_not_centred_by_its_footprint(tmp_path):
+    """--reach-mm: the farthest point from the table axis (a mug's handle, its body on the
+    axis) sets the bounding cylinder; less than half the width cannot be and is refused."""
+    r = run("plan", "new", "mug", "--size-mm", "117", "80", "95", "--reach-mm", "73.5",
+            "--mode", "auto", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert load_plan(tmp_path / "mug.toml").radius_mm == 74.5
+    bad = run("plan", "new", "mug", "--size-mm", "117", "80", "95", "--reach-mm", "50",
+              "-o", "bad.toml", cwd=tmp_path)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+    assert "less than half the object's width or depth (58.5 mm)" in bad.stderr
+    assert not (tmp_path / "bad.toml").exists()
+    nan = run("plan", "new", "mug", "--size-mm", "117", "80", "95", "--reach-mm", "nan",
+              "-o", "bad.toml", cwd=tmp_path)
+    assert nan.returncode == 2 and "the reach must be a finite number of mm" in nan.stderr
+
+
 def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
     for size in (["0", "10", "10"], ["nan", "10", "10"], ["10", "10", "-1"],
                  ["900", "900", "10"]):

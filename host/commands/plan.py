@@ -31,6 +31,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     n.add_argument("--round", action="store_true",
                    help="the object is round about the table axis (a can, a cup): its bounding "
                         "cylinder is its own, not a box's diagonal")
+    n.add_argument("--reach-mm", type=float, default=None, metavar="R",
+                   help="the farthest any part of the object is from the table axis (mm), "
+                        "when it is not centred by its footprint (a mug centred by its body: "
+                        "to the handle's end); the bounding cylinder is then R + 1 mm")
     n.add_argument("--material", default="", help="the object's material label (for "
                    "classification; one of the paper's seven or your own)")
     n.add_argument("--mode", choices=MODES, default="step",
@@ -55,7 +59,7 @@ def cmd_plan_new(args: argparse.Namespace) -> int:
     out = args.output or Path(f"{args.object_id}.toml")
     try:
         plan = plan_for_size(args.object_id, tuple(args.size_mm), args.round, args.material,
-                             args.mode, args.modality)
+                             args.mode, args.modality, reach_mm=args.reach_mm)
     except PlanError as e:
         raise CliError(str(e)) from None
     check_output(out, args.force)

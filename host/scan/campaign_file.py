@@ -15,6 +15,9 @@ The format (TOML, UTF-8, at most MAX_BYTES)::
     size_mm = [66.0, 66.0, 122.0]   # width, depth, height in mm (its keep-out is made of it)
     round = true                    # round in plan (a can, a cup); default false: a box,
                                     # whose bounding cylinder is the diagonal's
+    reach_mm = 73.5                 # optional: the farthest any part is from the table axis
+                                    # (mm), for an object not centred by its footprint (a mug
+                                    # centred by its body: to the handle's end)
     notes = "empty, ring pull away" # optional, kept in the scan file
     scene = "soda_can"              # optional: the emulator's scene to mount (default: id)
     levels_mm = [40.0, 42.0]        # optional: only these heights (mm above the table)
@@ -22,7 +25,8 @@ The format (TOML, UTF-8, at most MAX_BYTES)::
     modality = "us"                 # optional: this object's, instead of [campaign]'s (glass
                                     # and steel give no OA: "us"; foam no US echo: "oa")
 
-Each object's scan plan is `plan_for_size(id, size_mm, round, material, mode, modality)`
+Each object's scan plan is `plan_for_size(id, size_mm, round, material, mode, modality,
+reach_mm)`
 (host/scan/plan.py) with its notes and levels; it is checked here, so a size out of the
 machine's reach or an id that cannot name a scan is refused before anything moves. Every
 refusal is one line naming the object, the key and what to write instead.
@@ -45,7 +49,8 @@ MAX_TEXT = 1000         # characters of a notes, material or path value
 MAX_LEVELS = 200        # levels_mm values of one object
 MAX_ID = 90             # an id's characters: the scan id is ID-<8 hex digits>, at most 100
 CAMPAIGN_KEYS = ("classifier", "mode", "modality")
-OBJECT_KEYS = ("id", "material", "size_mm", "round", "notes", "scene", "levels_mm", "modality")
+OBJECT_KEYS = ("id", "material", "size_mm", "round", "notes", "scene", "levels_mm", "modality",
+               "reach_mm")
 EXAMPLE = ('[[object]]\\nid = "soda_can"\\nmaterial = "aluminium"\\n'
            'size_mm = [66.0, 66.0, 122.0]\\nround = true')
 
@@ -66,6 +71,7 @@ class CampaignObject:
     scene: str = ""  # the emulator's scene; "" in the file means the id (see `scene_name`)
     levels_mm: tuple[float, ...] = ()  # () : the plan's own levels
     modality: str = ""  # "": the campaign's
+    reach_mm: float | None = None  # farthest from the table axis (mm); None: from size_mm
 
     @property
     def scene_name(self) -> str:
@@ -87,7 +93,8 @@ class Campaign:
         """The object's scan plan (PlanError if it cannot be made: load_campaign has
         checked every object's)."""
         plan = plan_for_size(obj.object_id, obj.size_mm, obj.round, obj.material,
-                             mode=self.mode, modality=obj.modality or self.modality)
+                             mode=self.mode, modality=obj.modality or self.modality,
+                             reach_mm=obj.reach_mm)
         plan.notes = obj.notes
         if obj.levels_mm:
             plan.levels_mm = [float(z) for z in obj.levels_mm]
@@ -114,6 +121,8 @@ class Campaign:
                            + "]")
             if o.modality:
                 out.append(f"modality = {_str(o.modality)}")
+            if o.reach_mm is not None:
+                out.append(f"reach_mm = {float(o.reach_mm)!r}")
         return "\n".join(out) + "\n"
 
 
@@ -320,4 +329,12 @@ def _object(raw: dict, where: str) -> CampaignObject:
                                 f"height ({size_mm[2]:g} mm, size_mm[2]): give heights on it")
     modality = _choice(raw, "modality", MODALITIES, "", f"{where}:") if "modality" in raw \
         else ""
-    return CampaignObject(oid, material, size_mm, round_, notes, scene, levels, modality)
+    reach_mm = None
+    if "reach_mm" in raw:
+        reach_mm = _number(raw["reach_mm"], f"{where}: reach_mm", "reach_mm = 73.5")
+        if reach_mm > reach:
+            raise CampaignError(f"{where}: reach_mm = {reach_mm:.6g} mm is more than the "
+                                f"machine's longest travel ({reach:g} mm): give the farthest "
+                                f"point's distance from the table axis in mm")
+    return CampaignObject(oid, material, size_mm, round_, notes, scene, levels, modality,
+                          reach_mm)

@@ -207,19 +207,32 @@ def modality_for(material: str) -> str:
 
 
 def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: bool,
-                  material: str = "", mode: str = "step", modality: str | None = None
-                  ) -> ScanPlan:
+                  material: str = "", mode: str = "step", modality: str | None = None,
+                  reach_mm: float | None = None) -> ScanPlan:
     """A first plan for an object of width x depth x height (mm) centred on the table: its
-    bounding cylinder (+1 mm; a box's from its diagonal), one level at half its height (at
-    most 40 mm), four angles, the middle 70 % of its width; every 4 mm step and shoot, every
-    2 mm fly; the modality given, else the material's (modality_for). Edit the file for more
-    levels or a finer step (docs/scanning.md)."""
+    bounding cylinder (+1 mm; a box's from its diagonal, or reach_mm: the farthest any part
+    of it is from the table axis, for an object not centred by its footprint, such as a mug
+    centred by its body), one level at half its height (at most 40 mm), four angles, the
+    middle 70 % of its width; every 4 mm step and shoot, every 2 mm fly; the modality given,
+    else the material's (modality_for). Edit the file for more levels or a finer step
+    (docs/scanning.md)."""
     modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
         raise PlanError(f"the size must be three positive numbers in mm (got {w:g} {d:g} "
                         f"{h:g})")
     radius = max(w, d) / 2 if round_ else math.hypot(w, d) / 2
+    if reach_mm is not None:
+        reach = float(reach_mm)
+        if not math.isfinite(reach):
+            raise PlanError(f"the reach must be a finite number of mm from the table axis "
+                            f"(got {reach:g})")
+        # whatever the axis, one end of the object's widest side is half its width from it
+        if reach < max(w, d) / 2:
+            raise PlanError(f"the reach ({reach:g} mm from the table axis) is less than half "
+                            f"the object's width or depth ({max(w, d) / 2:g} mm): measure "
+                            f"from the axis to the object's farthest point")
+        radius = reach
     mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
     levels = [mm(min(0.5 * h, 40.0))]
     if mode == "auto":  # every 2 mm over the height (the coverage spacing)

@@ -141,11 +141,16 @@ def main() -> int:
         levels = auto_levels(size[2], args.band_mm)
         z_band = (levels[0] - SPACING_MM / 2, levels[-1] + SPACING_MM / 2)
         surface = reachable_truth(truths, sim.scene.v, sim.scene.n, SPACING_MM, z_band)
+        P = np.concatenate([np.asarray(t.mesh.vertices, float) @ np.asarray(t.R).T + t.center
+                            for t in truths])
+        reach = float(np.ceil(np.hypot(P[:, 0], P[:, 1]).max() * 10) / 10)  # from the axis
         sim.close()
         try:
             material = SCENES[obj]()[0].material
-            plan = replace(plan_for_size(obj, size, round_, material, "auto"),
-                           levels_mm=levels)
+            plan = plan_for_size(obj, size, round_, material, "auto")
+            if plan.radius_mm < reach:  # not centred by its footprint: --reach-mm
+                plan = plan_for_size(obj, size, round_, material, "auto", reach_mm=reach)
+            plan = replace(plan, levels_mm=levels)
             plan.validate()
             scan = one_scan(obj, "auto", plan, setup, args.seed, args.speed, z_band,
                             {"surface": surface}, out, 3600.0)

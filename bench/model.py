@@ -26,13 +26,12 @@ from pathlib import Path
 
 import numpy as np
 from coverage_truth import reachable_truth  # bench/, this script's folder
-from scan_coverage import auto_levels, calibrate, one_scan, revision
+from scan_coverage import auto_levels, bench_plan, calibrate, one_scan, revision, true_reach_mm
 from scipy.spatial import cKDTree
 
 from dmdsm.host.classify.materials import assemble, fit
 from dmdsm.host.classify.model_file import save_model
 from dmdsm.host.model.build import build_object_model
-from dmdsm.host.scan.plan import plan_for_size
 from dmdsm.sim.data.dataset import make_database
 from dmdsm.sim.physics.objects import SCENES, bounding_size
 from dmdsm.sim.servers.runner import SimConfig, Simulation
@@ -141,16 +140,12 @@ def main() -> int:
         levels = auto_levels(size[2], args.band_mm)
         z_band = (levels[0] - SPACING_MM / 2, levels[-1] + SPACING_MM / 2)
         surface = reachable_truth(truths, sim.scene.v, sim.scene.n, SPACING_MM, z_band)
-        P = np.concatenate([np.asarray(t.mesh.vertices, float) @ np.asarray(t.R).T + t.center
-                            for t in truths])
-        reach = float(np.ceil(np.hypot(P[:, 0], P[:, 1]).max() * 10) / 10)  # from the axis
+        reach = true_reach_mm(truths)
         sim.close()
         try:
             material = SCENES[obj]()[0].material
-            plan = plan_for_size(obj, size, round_, material, "auto")
-            if plan.radius_mm < reach:  # not centred by its footprint: --reach-mm
-                plan = plan_for_size(obj, size, round_, material, "auto", reach_mm=reach)
-            plan = replace(plan, levels_mm=levels)
+            plan = replace(bench_plan(obj, size, round_, material, "auto", reach)[0],
+                           levels_mm=levels)
             plan.validate()
             scan = one_scan(obj, "auto", plan, setup, args.seed, args.speed, z_band,
                             {"surface": surface}, out, 3600.0)

@@ -131,6 +131,26 @@ def auto_levels(height_mm: float, band_mm: float) -> list[float]:
         round(max(height_mm / 2, AUTO_LOWEST_MM), 1)]
 
 
+def true_reach_mm(truths: list) -> float:
+    """The truth's farthest point from the table axis (mm): what an operator measures for
+    plan new --reach-mm."""
+    P = np.concatenate([np.asarray(t.mesh.vertices, float) @ np.asarray(t.R).T + t.center
+                        for t in truths])
+    return float(np.hypot(P[:, 0], P[:, 1]).max())
+
+
+def bench_plan(obj: str, size: tuple, round_: bool, material: str, mode: str,
+               true_reach: float) -> tuple:
+    """(plan_for_size's plan, the reach_mm given or None): the reach (to 0.1 mm up) where
+    the footprint's bounding cylinder is inside the object's farthest point (the mug's
+    handle), as an operator would give it."""
+    plan = plan_for_size(obj, size, round_, material, mode)
+    if plan.radius_mm >= true_reach:
+        return plan, None
+    reach = math.ceil(true_reach * 10) / 10
+    return plan_for_size(obj, size, round_, material, mode, reach_mm=reach), reach
+
+
 def calibrate(seed: int, speed: float) -> object:
     """The ranging setup, measured on the block (gauge) with the same seed as the scans."""
     emu = Emulator(sim=Simulation(SimConfig(scene="aluminium_block", seed=seed)),
@@ -348,11 +368,9 @@ def main() -> int:
         z_band = (levels[0] - SPACING_MM / 2, levels[-1] + SPACING_MM / 2)
         s = sim.scene
         surface = reachable_truth(truths, s.v, s.n, SPACING_MM, z_band)
-        P = np.concatenate([np.asarray(t.mesh.vertices, float) @ np.asarray(t.R).T + t.center
-                            for t in truths])
         sim.close()
         reference = {"surface": surface, "samples": len(surface),
-                     "true_radius_mm": float(np.hypot(P[:, 0], P[:, 1]).max())}
+                     "true_radius_mm": true_reach_mm(truths)}
         print(f"\n{obj}: {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} mm "
               f"({'round' if round_ else 'not round'}), farthest from the table axis "
               f"{reference['true_radius_mm']:.1f} mm; band z {z_band[0]:g}..{z_band[1]:g} mm, "
@@ -361,15 +379,11 @@ def main() -> int:
             print(f"  {mode} ...", file=sys.stderr, flush=True)
             wall0 = time.monotonic()
             try:
-                material = SCENES[obj]()[0].material
-                plan = plan_for_size(obj, size, round_, material, mode)
-                if plan.radius_mm < reference["true_radius_mm"]:
-                    # not centred by its footprint (the mug's handle): the operator measures
-                    # its reach from the table axis (plan new --reach-mm)
-                    reach = math.ceil(reference["true_radius_mm"] * 10) / 10
-                    print(f"  note: the footprint's bounding cylinder ({plan.radius_mm:g} mm) "
-                          f"is inside the object's farthest point: reach_mm = {reach:g}")
-                    plan = plan_for_size(obj, size, round_, material, mode, reach_mm=reach)
+                plan, reach = bench_plan(obj, size, round_, SCENES[obj]()[0].material, mode,
+                                         reference["true_radius_mm"])
+                if reach is not None:
+                    print(f"  note: the footprint's bounding cylinder is inside the object's "
+                          f"farthest point: reach_mm = {reach:g}")
                 if mode == "auto":
                     plan = replace(plan, levels_mm=levels)
                     plan.validate()

@@ -73,16 +73,24 @@ def truth(t: dict, ticks: np.ndarray) -> np.ndarray:
 
 def client_child(url: str, conn: object) -> None:
     """A foxglove.websocket.v1 subscriber in its own process, as Foxglove or a controller
-    is: subscribes, then sends back the arrival times (host monotonic s, a clock shared by
-    every process) of the first n records' last messages."""
-    from live_helpers import WsClient
+    is (SocketWsClient: one blocking socket, each arrival stamped as its recv returns):
+    subscribes, reads until told how many records there were, then sends back the arrival
+    times (host monotonic s, a clock shared by every process) of their last messages."""
+    from live_helpers import SocketWsClient
 
-    client = WsClient(url)
-    conn.send(client.subscribed.wait(10))
-    n = conn.recv()
-    got = client.wait_for(LAST_TOPIC, n, 30)
+    client = SocketWsClient(url)
+    conn.send(True)
+    got: list[float] = []
+    n = None
+    while n is None or len(got) < n:
+        if n is None and conn.poll():
+            n = conn.recv()
+        new = client.read(LAST_TOPIC, 0.5)
+        if new is None and n is not None:
+            break  # the stream has ended short of n: what came is sent back
+        got.extend(new or [])
     client.close()
-    conn.send([a for _, _, a in got])
+    conn.send(got[:n])
 
 
 def run_live(sensor: str, setup: object, n_average: int, seconds: float) -> dict:

@@ -14,7 +14,7 @@ from contextlib import closing
 
 import numpy as np
 import pytest
-from live_helpers import WsClient, rosbags_decoder
+from live_helpers import SocketWsClient, WsClient, rosbags_decoder
 from test_classify import db, model  # noqa: F401  (fixtures: a material model, trained once)
 
 from dmdsm.host.links.sensor import SensorClient
@@ -110,6 +110,47 @@ def test_publish_never_waits_for_a_client_that_does_not_read():
     assert done.wait(60), "publish() blocked on a client that does not read"
     stalled.close()
     srv.close()
+
+
+def test_the_benchs_socket_client_stamps_every_message_after_it_was_published():
+    """bench/live.py's timing client (one blocking socket, websockets' sans-I/O framing):
+    subscribed through the handshake and advertise, it gets every record's last message,
+    in order, each stamped after the publish that sent it and before the next one's end."""
+    from dmdsm.host.robotics.live import LiveRecord
+
+    srv = LiveServer("127.0.0.1", 0, sample_rate_hz=3.3e6)
+    client = SocketWsClient(f"ws://127.0.0.1:{srv.port}")
+    assert set(client.subs.values()) == set(TOPICS)
+
+    def record(i: int) -> LiveRecord:
+        rec = LiveRecord(i, i, 1.0, 1e-4, 1.7e9 + i * 1e-3, 1.0, 1, 0,
+                         np.full(1024, i, np.uint16))
+        rec.distance_mm, rec.distance_std_mm, rec.snr_db = {"us": 7.0}, {"us": 0.01}, \
+            {"us": 30.0}
+        return rec
+
+    for _ in range(200):  # the server applies the subscription on its own task: until one
+        srv.publish(record(0))  # message comes back
+        if client.read("/dmdsm/distance/us", 0.05):
+            break
+    else:
+        raise AssertionError("the subscription never took effect")
+    while client.read("/dmdsm/distance/us", 0.2) is not None:
+        pass  # the warm-up's stragglers
+    before, got = [], []
+    for i in range(100):
+        rec = record(i)
+        before.append(time.monotonic())
+        srv.publish(rec)
+        while len(got) <= i:  # this record's message, stamped as its recv returned
+            new = client.read("/dmdsm/distance/us", 10)
+            assert new is not None, f"record {i} never arrived"
+            got.extend(new)
+    client.close()
+    srv.close()
+    assert len(got) == 100
+    assert all(b <= a for b, a in zip(before, got)), "an arrival stamped before its publish"
+    assert all(g <= t for g, t in zip(got, before[1:])), "an arrival stamped late"
 
 
 def test_serve_refuses_another_network_and_a_port_in_use():

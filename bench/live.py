@@ -1,6 +1,6 @@
 """`dmdsm live` against the emulator: records/s, losses, latency, CPU and stamp error.
 
-    python bench/live.py [--minutes 10] [--quick] [--pin]
+    python bench/live.py [--minutes 10] [--quick] [--pin] [--rate link|averaging]
 
 The emulator runs in a child process (as `dmdsm sim` would: its physics does not share the
 host's interpreter lock; with --pin on a core of its own, as the board's processor is not
@@ -190,6 +190,8 @@ def main() -> None:
     ap.add_argument("--pin", action="store_true",
                     help="run the emulator on the last core alone, the host and the client "
                          "on the others (as the board's processor is not the host's)")
+    ap.add_argument("--rate", choices=("link", "averaging"), action="append",
+                    help="measure only this rate (repeatable; default both)")
     args = ap.parse_args()
     seconds = 10.0 if args.quick else args.minutes * 60
     from dmdsm.host.links.stage import StageClient
@@ -215,8 +217,9 @@ def main() -> None:
             if pin is not None else "sharing the host's cores"
         print(f"dmdsm live bench: emulator in a child process ({where}), real time; "
               f"{seconds:.0f} s per rate")
-        for name, n_avg in (("link limit (1024 samples, no averaging)", 1),
-                            ("on-board averaging (16 shots)", 16)):
+        rates = {"link": ("link limit (1024 samples, no averaging)", 1),
+                 "averaging": ("on-board averaging (16 shots)", 16)}
+        for name, n_avg in (rates[r] for r in args.rate or rates):
             here.send("start")
             raw = run_live(sensor, setup, n_avg, seconds)
             here.send("times")

@@ -231,12 +231,14 @@ class SocketWsClient:
 
     def close(self) -> None:
         """Leave with the closing handshake (the server logs a reset otherwise)."""
+        from websockets.exceptions import InvalidState
+
         try:
             self.proto.send_close()
             self._flush()
             self.sock.settimeout(1.0)
             while self.sock.recv(1 << 16):  # the server's close frame, then its FIN
                 pass
-        except OSError:
+        except (OSError, InvalidState):  # already closed by the server, or the socket gone
             pass
         self.sock.close()

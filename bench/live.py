@@ -78,7 +78,12 @@ def client_child(url: str, conn: object) -> None:
     times (host monotonic s, a clock shared by every process) of their last messages."""
     from live_helpers import SocketWsClient
 
-    client = SocketWsClient(url)
+    try:
+        client = SocketWsClient(url)
+    except (OSError, ConnectionError) as e:  # TimeoutError is an OSError
+        print(f"the websocket client could not connect to {url}: {e}", file=sys.stderr)
+        conn.send(False)
+        return
     conn.send(True)
     got: list[float] = []
     n = None

@@ -232,7 +232,7 @@ def _profile_fits(P: np.ndarray, amp: np.ndarray, c0: np.ndarray, steps: np.ndar
             gain = float(prof @ amp) / max(float(prof @ prof), 1e-12)
             return gain * prof - amp
 
-        sols = [least_squares(resid, np.clip(st, lo, hi), bounds=(lo, hi), loss="soft_l1",
+        sols = [least_squares(resid, st, bounds=(lo, hi), loss="soft_l1",
                               f_scale=f_scale, diff_step=1e-3, max_nfev=60)
                 for st in near_best]
         x = min(sols, key=lambda sol: sol.cost).x

@@ -84,6 +84,7 @@ def test_amplitude_noise_is_recovered(rel_noise):
 @given(seed=st.integers(0, 10_000), gain=st.floats(0.01, 100.0),
        stretch=st.floats(0.75, 1.35))
 @example(seed=246, gain=1.0, stretch=1.2890625)  # a grid start in the wrong basin (make test)
+@example(seed=1191, gain=0.01, stretch=0.75)  # least squares stopped on a small gradient
 def test_a_smooth_profile_without_noise_shows_none(seed, gain, stretch):
     """Whatever the gain, the phases and the width of spot and target together, a noise-free
     profile the model follows shows under 2 % noise (the misfit of the fitted width and

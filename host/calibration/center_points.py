@@ -13,21 +13,29 @@ from .solver import CalibrationData, CalibrationError, same_angle
 MIN_POINTS = 2  # raw points above threshold a center point needs (one gives no spread)
 
 
-def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: float
-                   ) -> np.ndarray:
+def front_depth_mm(offset_mm: np.ndarray, radius_mm: float, spot_radius_mm: float,
+                   shape: str = "disk") -> np.ndarray:
     """How far in front of a filament's axis the ranged surface lies (mm), for a beam whose
-    centre passes offset_mm beside the axis.
+    centre passes offset_mm beside the axis, square to it (an oblique beam: solve's MLE
+    divides by the sine of its angle to the filament).
 
-    Ranging reports the mean distance of the part of the spot (a uniform disk of
-    spot_radius_mm) that lands on the filament (radius_mm); there the front surface is
-    sqrt(r^2 - s^2) in front of the axis at lateral position s. Adding this to a raw depth
-    puts the point on the axis: a constant `radius_mm` would leave it ~0.05 mm short."""
+    Ranging reports the mean distance of the part of the spot (`shape` as in Spot: a
+    uniform disk of spot_radius_mm, or a Gaussian of sigma spot_radius_mm / 2) that lands
+    on the filament (radius_mm); there the front surface is sqrt(r^2 - s^2) in front of
+    the axis at lateral position s. Adding this to a raw depth puts the point on the axis:
+    a constant `radius_mm` would leave it ~0.05 mm short."""
     u = np.atleast_1d(np.asarray(offset_mm, float))
     r, rho = float(radius_mm), float(spot_radius_mm)
     if r <= 0:
         return np.zeros_like(u)
     if rho <= 0:
         return np.sqrt(np.maximum(r * r - u * u, 0.0))
+    if shape == "gauss":  # over the filament at s = r sin(phi): smooth at its sides
+        phi = ((np.arange(512) + 0.5) / 512 - 0.5) * np.pi
+        s, c = r * np.sin(phi), r * np.cos(phi)  # c: the front's depth there
+        w = np.exp(-0.5 * ((s[None, :] - u[:, None]) / (0.5 * rho)) ** 2) * c  # ds = c dphi
+        total = w.sum(axis=1)
+        return np.where(total > 0, (w * c).sum(axis=1) / np.maximum(total, 1e-300), 0.0)
     t = (np.arange(512) + 0.5) / 256 - 1  # across the spot, in spot radii (midpoints)
     s = u[:, None] + rho * t[None, :]
     w = np.sqrt(1 - t * t)[None, :] * (np.abs(s) < r)  # chord length of the disk at s
@@ -195,14 +203,18 @@ def _profile_fits(P: np.ndarray, amp: np.ndarray, c0: np.ndarray, steps: np.ndar
     within START_WITHIN of its best scale), the lowest cost kept: the misfit of a stretch
     between the grid's steps (12 % apart) changed within a raster step and passed for 4 %
     amplitude noise on a profile the model follows, and from the grid's best alone a fit
-    could stay in another basin (a narrow spot a step off centre)."""
+    could stay in another basin (a narrow spot a step off centre). The amplitudes are
+    taken relative to their largest: least squares stops on the gradient's size, which
+    scales with the gain squared (at 1/100 of the gain a fit stopped short of the
+    profile, 10 % misfit taken for noise and the spot for a disk)."""
     from scipy.optimize import least_squares
 
     k = P.shape[1]
+    amp = np.asarray(amp, float) / max(float(np.max(amp)), 1e-300)
     g = np.linspace(-0.6, 0.6, 5)
     shifts = np.stack(np.meshgrid(*[g * max(s, 1e-3) for s in steps]), -1).reshape(-1, k)
     out: dict[str, ProfileFit] = {}
-    f_scale = max(0.01 * float(np.max(amp)), 1e-12)
+    f_scale = 0.01
     lo = np.r_[np.full(k, -np.inf), np.log(0.6)]
     hi = np.r_[np.full(k, np.inf), np.log(1.6)]
     for shape in SPOT_SHAPES:
@@ -412,26 +424,38 @@ def target_noise(S: np.ndarray, raw: dict[str, np.ndarray], groups: list[np.ndar
     return amp_noise(fits, steps) if fits else None
 
 
+class Center(NamedTuple):
+    """One center point (§IV-C) and what its covariance and the MLE need of its raw points."""
+
+    S: np.ndarray        # (3,) stage reading (mm): the kept raw points' mean
+    d: float             # depth (mm): their mean (an edge's moved onto the axis)
+    cov_S: np.ndarray    # (3, 3) mm^2
+    points: tuple[np.ndarray, np.ndarray]  # kept points' lateral offsets, depths
+    front: float         # mean front depth added (mm; edges), for a beam square to it
+
+
 def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
             radius_mm: float = 0.0, spot_radius_mm: float = 0.0, target: str = "strip",
             count: float | None = None, noise: tuple[float, str] | None = None
-            ) -> tuple[np.ndarray, float, np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
-    """(stage reading S (mm), depth (mm), stage covariance (3, 3 mm^2), (kept points'
-    lateral offsets, their depths) for depth_noise_var) of the center point of the ranged
-    raw points above threshold x max amplitude (§IV-C), or None with fewer than
-    MIN_POINTS. With a filament radius and target "strip" the points
-    are a sweep across a filament: each depth is moved from the ranged front surface onto
-    the axis (front_depth_mm of its offset from the sweep's centre). The lateral covariance
-    is the raster's (raster_centroid_cov, with the target's `noise` if given) in the
-    raster's plane and the points' spread / n out of it (stage noise)."""
+            ) -> Center | None:
+    """The center point of the ranged raw points above threshold x max amplitude (§IV-C),
+    or None with fewer than MIN_POINTS. With a filament radius and target "strip" the
+    points are a sweep across a filament: each depth is moved from the ranged front surface
+    onto the axis (front_depth_mm of its offset from the sweep's centre, for the spot shape
+    of `noise`, the one the amplitudes showed). The lateral covariance is the raster's
+    (raster_centroid_cov, with the target's `noise` if given) in the raster's plane and the
+    points' spread / n out of it (stage noise)."""
     ok, keep = _above(S, d, amp, threshold)
     n = int(keep.sum())
     if n < MIN_POINTS:
         return None
     Sk, dk = S[keep], d[keep]
+    front = 0.0
     if radius_mm > 0 and target == "strip":
         _, _, vt = np.linalg.svd(S[ok] - S[ok].mean(axis=0))  # the sweep direction
-        dk = dk + front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm)
+        fd = front_depth_mm((Sk - Sk.mean(axis=0)) @ vt[0], radius_mm, spot_radius_mm,
+                            noise[1] if noise is not None else "disk")
+        dk, front = dk + fd, float(fd.mean())
     spread = np.cov(Sk.T) / n
     # the raster's plane: the stage axes it steps along (a square raster has no SVD axes)
     U = _raster_plane(S[ok])
@@ -442,7 +466,8 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
         cov = U @ Q @ U.T + out @ spread @ out
     else:
         cov = spread
-    return Sk.mean(axis=0), float(dk.mean()), cov, ((Sk - Sk.mean(axis=0)) @ U, dk)
+    return Center(Sk.mean(axis=0), float(dk.mean()), cov, ((Sk - Sk.mean(axis=0)) @ U, dk),
+                  front)
 
 
 def depth_noise_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -476,6 +501,35 @@ def depth_noise_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
         return 0.0
     res = d - A @ np.linalg.lstsq(A, d, rcond=None)[0]
     return float(res @ res / dof)
+
+
+def sweep_depth_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Variance (mm^2) of one raw depth's noise along edge sweeps: each depth less the line
+    through its two neighbours along the sweep (interpolated at its offset), scaled by that
+    difference's variance factor 1 + w^2 + (1 - w)^2, pooled as a mean square over the
+    sweeps (`points`: per center point the kept raw points' offsets (n, 1 mm) and depths
+    moved onto the axis (n,)); depth_noise_var where the sweeps have too few points.
+
+    Moved onto the axis, a sweep's depths still carry what the front-depth model misses of
+    the filament and the spot: smooth in the offset, different in every sweep (its phase),
+    so a trend shared by all sweeps left it in and passed it for noise (2.7 um declared per
+    edge center against 0.8 um true with almost no noise, docs/calibration.md). A locally
+    linear part cancels in the differences; what is new at every raw point stays."""
+    diffs = []
+    for lat, d in points:
+        if len(d) < 3 or lat.ndim != 2 or lat.shape[1] != 1:
+            continue
+        o = np.argsort(lat[:, 0], kind="stable")
+        x, y = lat[o, 0], d[o]
+        span = x[2:] - x[:-2]
+        ok = span > 0
+        w = np.where(ok, (x[2:] - x[1:-1]) / np.where(ok, span, 1.0), 0.5)
+        diff = (y[1:-1] - (w * y[:-2] + (1 - w) * y[2:])) / np.sqrt(1 + w * w + (1 - w) ** 2)
+        diffs.append(diff[ok])
+    x = np.concatenate(diffs) if diffs else np.zeros(0)
+    if len(x) < 3:
+        return depth_noise_var(points)
+    return float(np.mean(x ** 2))
 
 
 def _check_size(tip_groups: list[np.ndarray], edge_groups: list[np.ndarray], n_frames: int
@@ -563,13 +617,13 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
                 f"edge frame {f:g}: {len(got)} of {len(lines)} scan lines have {MIN_POINTS} or "
                 f"more ranged points above threshold (no echo or too weak): sweep across the "
                 f"filament at two or more heights (--at, --edge-half)")
-        heights = np.array([c[0] for c in got])
+        heights = np.array([c.S for c in got])
         span = np.ptp(heights - heights.mean(axis=0), axis=0).max()
         if span < 1.0:
             raise CalibrationError(f"edge frame {f:g}: its center points span {span:.2f} mm: "
                                    f"scan the filament at heights 1 mm or more apart "
                                    f"(--edge-levels)")
-        edges += [(len(frames), *c) for c in got]
+        edges += [(len(frames), c) for c in got]
         frames.append(float(f))
         th = raw["theta_deg"][fm]
         thetas.append(float(np.median(th[np.isfinite(th)])) if np.isfinite(th).any()
@@ -578,12 +632,15 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
         raise CalibrationError(f"{len(frames)} edge frame(s): need edge frames at two or more "
                                f"turntable angles")
     _edge_angles(frames, thetas)
+    ec = [e[1] for e in edges]
     return CalibrationData(
-        np.array([t[0] for t in tips]), np.array([t[1] for t in tips]),
-        np.array([e[1] for e in edges]), np.array([e[2] for e in edges]),
+        np.array([t.S for t in tips]), np.array([t.d for t in tips]),
+        np.array([c.S for c in ec]), np.array([c.d for c in ec]),
         np.array([e[0] for e in edges]), np.array(thetas), sigma_theta_deg=sigma_theta_deg,
-        tip_cov_S=np.array([t[2] for t in tips]),
-        tip_var_d=depth_noise_var([t[3] for t in tips]) / np.array([len(t[3][1]) for t in tips]),
-        edge_cov_S=np.array([e[3] for e in edges]),
-        edge_var_d=depth_noise_var([e[4] for e in edges]) / np.array([len(e[4][1])
-                                                                      for e in edges]))
+        tip_cov_S=np.array([t.cov_S for t in tips]),
+        tip_var_d=depth_noise_var([t.points for t in tips]) / np.array([len(t.points[1])
+                                                                      for t in tips]),
+        edge_cov_S=np.array([c.cov_S for c in ec]),
+        edge_var_d=sweep_depth_var([c.points for c in ec]) / np.array([len(c.points[1])
+                                                                      for c in ec]),
+        edge_front_mm=np.array([c.front for c in ec]))

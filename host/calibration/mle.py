@@ -38,6 +38,7 @@ class Problem(NamedTuple):
     thetas: list[float]     # (F,) table angle read per edge frame (deg)
     radius_mm: float        # filament radius: edge depths moved onto its axis
     sigma_theta_deg: float  # table angle reading noise
+    edge_front: np.ndarray  # (m,) the front depth in edge_d for a square beam (mm)
 
 
 class Params(NamedTuple):
@@ -122,9 +123,13 @@ def _edges(pb: Problem, P: Params, scale: float, extra: float = 0.0
     covariances (stage scaled plus depth)."""
     for i, f in enumerate(pb.frames):
         sel = pb.edge_frame == f
-        X = pb.edge_S[sel] + (pb.edge_d[sel, None] + pb.radius_mm) * P.v
         R = rodrigues(P.n, np.radians(P.theta_deg[i]))
         li = R @ P.q
+        # a beam at angle beta to the filament meets its front 1 / sin(beta) times as far
+        # before the axis as a square one (the radius, and center_points' front depths)
+        k = 1.0 / max(float(np.linalg.norm(np.cross(li, P.v))), 1e-3)
+        d = pb.edge_d[sel] + k * pb.radius_mm + (k - 1.0) * pb.edge_front[sel]
+        X = pb.edge_S[sel] + d[:, None] * P.v
         rel = X - (P.X_R + R @ (P.point - P.X_R))
         B = tangent_basis(li)
         perp = (rel - np.outer(rel @ li, li)) @ B

@@ -129,6 +129,10 @@ class CalibrationData:
     tip_var_d: np.ndarray | None = None   # (k,) mm^2
     edge_cov_S: np.ndarray | None = None  # (m, 3, 3)
     edge_var_d: np.ndarray | None = None  # (m,)
+    # (m,) mm: the part of each edge depth that moved it from the front surface onto the
+    # axis for a beam square to the filament (center_points: front_depth_mm); the MLE
+    # divides it by the sine of the beam's angle to the filament
+    edge_front_mm: np.ndarray | None = None
 
     def point_covs(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """(cov_S (k,3,3), var_d (k,)) of the tip or edge center points."""
@@ -237,9 +241,11 @@ def mle_problem(data: CalibrationData, frames: np.ndarray, thetas: list[float]) 
     them."""
     tip_cS, tip_vd = data.point_covs("tip")
     edge_cS, edge_vd = data.point_covs("edge")
+    front = np.zeros(len(data.edge_d)) if data.edge_front_mm is None else \
+        np.asarray(data.edge_front_mm, float)
     return mle.Problem(data.tip_S, data.tip_d, tip_cS, tip_vd, data.edge_S, data.edge_d,
                        edge_cS, edge_vd, data.edge_frame, frames, thetas,
-                       data.filament_radius_mm, data.sigma_theta_deg)
+                       data.filament_radius_mm, data.sigma_theta_deg, front)
 
 
 def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bool = True

@@ -522,10 +522,10 @@ def sweep_depth_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
         o = np.argsort(lat[:, 0], kind="stable")
         x, y = lat[o, 0], d[o]
         span = x[2:] - x[:-2]
-        ok = span > 0
-        w = np.where(ok, (x[2:] - x[1:-1]) / np.where(ok, span, 1.0), 0.5)
-        diff = (y[1:-1] - (w * y[:-2] + (1 - w) * y[2:])) / np.sqrt(1 + w * w + (1 - w) ** 2)
-        diffs.append(diff[ok])
+        ok = span > 0  # two raw points at one offset give no line
+        w = (x[2:] - x[1:-1])[ok] / span[ok]
+        line = w * y[:-2][ok] + (1 - w) * y[2:][ok]
+        diffs.append((y[1:-1][ok] - line) / np.sqrt(1 + w * w + (1 - w) ** 2))
     x = np.concatenate(diffs) if diffs else np.zeros(0)
     if len(x) < 3:
         return depth_noise_var(points)

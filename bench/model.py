@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 from dmdsm.host.classify.materials import assemble, fit
 from dmdsm.host.classify.model_file import save_model
 from dmdsm.host.model.build import build_object_model
+from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.sim.data.dataset import make_database
 from dmdsm.sim.physics.objects import SCENES, bounding_size
 from dmdsm.sim.servers.runner import SimConfig, Simulation
@@ -118,6 +119,9 @@ def main() -> int:
     ap.add_argument("--classifier", type=Path, help="a model file (default: train one)")
     ap.add_argument("--out", type=Path, help="folder for the scans and models")
     ap.add_argument("--json", type=Path, help="write all figures to this file")
+    ap.add_argument("--max-incidence-deg", type=float,
+                    help="the auto plans' max_incidence_deg (default: the plan's own, "
+                         f"{ScanPlan.max_incidence_deg:g})")
     args = ap.parse_args()
     objects = list(QUICK) if args.quick else args.objects
     out = args.out or Path(tempfile.mkdtemp(prefix="bench-model-"))
@@ -146,6 +150,8 @@ def main() -> int:
             material = SCENES[obj]()[0].material
             plan = replace(bench_plan(obj, size, round_, material, "auto", reach)[0],
                            levels_mm=levels)
+            if args.max_incidence_deg is not None:
+                plan = replace(plan, max_incidence_deg=args.max_incidence_deg)
             plan.validate()
             scan = one_scan(obj, "auto", plan, setup, args.seed, args.speed, z_band,
                             {"surface": surface}, out, 3600.0)

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from ..calibration.result import joint_covariance
 from ..classify.materials import ClassifyError, FusedModel, scan_dataset
 from ..classify.model_file import check_provenance, load_model
+from ..ranging.calibrate import RangingSetup
 from ..scan.catalogue import list_scans, verify
 from ..scan.points import MODS, scan_points
 from ..scan.reconstruct import object_points
@@ -78,6 +79,22 @@ def _joint_cov(cal: dict) -> np.ndarray | None:
     return joint_covariance(cal.get("cov", ()))
 
 
+def ranging_offset_std_mm(ranging_json: str, geometric: str = "oa") -> dict[str, float]:
+    """The std (mm) of the error every distance of a modality shares: its ranging
+    calibration's t0 (std times c, halved for the US round trip) less what the geometric
+    calibration absorbed. That one (`dmdsm calibrate`, OA unless told otherwise; the scan
+    file does not say) measured its centre points with the `geometric` modality's distances,
+    so their t0 error is in X_R and cancels from that modality's points; the other
+    modality's points keep both t0 errors. {} if the setup is not readable."""
+    try:
+        cals = RangingSetup.from_json(ranging_json).cals
+    except (ValueError, KeyError, TypeError):
+        return {}
+    t0 = {m: c.t0_std_s * c.c_mm_s / (1.0 if m == "oa" else 2.0) for m, c in cals.items()}
+    return {m: float(np.hypot(s, t0.get(geometric, 0.0))) for m, s in t0.items()
+            if m != geometric}
+
+
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                    table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
@@ -86,6 +103,7 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
     toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
     pts = scan_points(scan)
     cal = scan.calibration
+    offset = ranging_offset_std_mm(scan.ranging_json)
     keys = ("P", "cov", "common", "repeat", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):
@@ -100,7 +118,7 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
             p["S"], p["d"], d_std, p["theta_deg"], cal["v"], cal["n"], cal["X_R"],
             _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
             stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"],
-            cal_cov=_joint_cov(cal))
+            cal_cov=_joint_cov(cal), offset_std_mm=offset.get(m, 0.0))
         out["P"].append(P)
         out["repeat"].append(travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
         out["cov"].append(own + common)

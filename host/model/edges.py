@@ -44,7 +44,8 @@ def split_by_normal(normals: np.ndarray, w: np.ndarray, iters: int = 4) -> np.nd
 
 
 def edge_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
-             normals: np.ndarray, point_var: np.ndarray, h_mm: float, move: np.ndarray
+             normals: np.ndarray, point_var: np.ndarray, h_mm: float | np.ndarray,
+             move: np.ndarray
              ) -> dict[str, np.ndarray]:
     """Two-plane fits of centres x (m, 3) mm whose neighbours Q (m, K, 3) (valid (m, K), cov
     (m, K, 3, 3) mm^2, own normals (m, K, 3), point_var (m, K) mm^2 along them) lie on two
@@ -52,7 +53,8 @@ def edge_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     Returns ok (m,) where the split holds; t (m,) mm, the move onto the edge's surface; normal
     (m, 3), the face it lands on; var (m,) mm^2, t's variance from that face's fit; chi2 (m,)
     the two fits' weighted reduced chi-square over their own points; n_eff (m,)."""
-    w0 = valid * np.exp(-0.5 * ((Q - x[:, None, :]) ** 2).sum(axis=2) / h_mm ** 2)
+    h2 = np.broadcast_to(np.asarray(h_mm, float), (len(x),))[:, None] ** 2  # one or (m,)
+    w0 = valid * np.exp(-0.5 * ((Q - x[:, None, :]) ** 2).sum(axis=2) / h2)
     second = split_by_normal(normals, w0)
     fits = []
     for grp in (~second & valid, second & valid):

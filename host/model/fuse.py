@@ -41,7 +41,8 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
                      theta_deg: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
                      v_std: np.ndarray, n_std: np.ndarray, X_R_std: np.ndarray,
                      stage_std_mm: float = 0.01, table_std_deg: float = 0.01,
-                     travel_mm: np.ndarray | None = None, cal_cov: np.ndarray | None = None
+                     travel_mm: np.ndarray | None = None, cal_cov: np.ndarray | None = None,
+                     offset_std_mm: float = 0.0
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object-frame points P (k, 3) mm and their covariance (k, 3, 3) mm^2 in two parts:
     (P, own, common). own: the distance's std along v (d_std_mm, mm), the stage's noise
@@ -52,7 +53,9 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
     covariance from `dmdsm calibrate`, v, n, X_R in that order: the rig fixes the table's
     axis at the heights it saw, so an error of n's tilt and one of X_R mostly cancel there,
     and the per-component stds alone overstate the points' error by up to 3x) and the table
-    angle (table_std_deg, deg, shared by the points of one stop).
+    angle (table_std_deg, deg, shared by the points of one stop) and, offset_std_mm, an
+    error of every distance alike (a ranging calibration's t0 the geometric one did not
+    absorb, mm along v).
     Raises ValueError on a non-finite d_std (a distance without its std has no covariance)."""
     S = np.asarray(S_mm, float).reshape(-1, 3)
     d = np.asarray(d_mm, float).ravel()
@@ -93,6 +96,8 @@ def covariance_parts(S_mm: np.ndarray, d_mm: np.ndarray, d_std_mm: np.ndarray,
         common = np.einsum("kij,j,klj->kil", Jv, np.asarray(v_std, float) ** 2, Jv)
         common += np.einsum("kij,j,klj->kil", M, np.asarray(X_R_std, float) ** 2, M)
         common += np.einsum("kij,j,klj->kil", Jn, np.asarray(n_std, float) ** 2, Jn)
+    if offset_std_mm:
+        common += offset_std_mm ** 2 * np.einsum("ki,kj->kij", M @ vu, M @ vu)
     Jt = np.radians(1.0) * np.column_stack([P[:, 1], -P[:, 0], np.zeros(len(P))])
     common += table_std_deg ** 2 * np.einsum("ki,kj->kij", Jt, Jt)
     return P, own, common
@@ -135,13 +140,14 @@ def _median(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
-              h_mm: float, ref_normal: np.ndarray | None = None, iters: int = 4,
+              h_mm: float | np.ndarray, ref_normal: np.ndarray | None = None, iters: int = 4,
               curvature_prior: float = 1e-9, point_var: np.ndarray | None = None
               ) -> dict[str, np.ndarray]:
     """Robust weighted quadratic fit of each centre's neighbours, evaluated at the centre.
 
     x (m, 3) centres, Q (m, K, 3) neighbours (mm), valid (m, K) which of them are real (each row
-    needs >= 6), cov (m, K, 3, 3) their covariances (mm^2), h_mm the Gaussian weight's scale.
+    needs >= 6), cov (m, K, 3, 3) their covariances (mm^2), h_mm the Gaussian weight's scale
+    (one, or (m,): each centre its own).
     The frame's normal is the weighted PCA normal (signed along ref_normal if given); the
     height z(u, v) = a0 + a1 u + a2 v + a3 u^2 + a4 uv + a5 v^2 is refitted `iters` times with
     Tukey weights on residuals over max(1.4826 MAD, the points' own std along the normal).
@@ -161,6 +167,7 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
     weight, w0 (m, K) its Gaussian weight before the robust pass, r (m, K) its residual
     (mm), g0 (m, K) the offset's derivative by its height (var = sum g0^2 s2)."""
     m, K = valid.shape
+    h_mm = np.broadcast_to(np.asarray(h_mm, float), (m,))[:, None]  # one scale per centre
     d = Q - x[:, None, :]
     w0 = valid * np.exp(-0.5 * ((d * d).sum(axis=2) / h_mm ** 2))
     sw = w0.sum(axis=1)
@@ -209,10 +216,10 @@ def local_fit(x: np.ndarray, Q: np.ndarray, valid: np.ndarray, cov: np.ndarray,
             * n_eff / np.maximum(n_eff - 6, 1.0))
     chi2_robust = ((1.4826 * _median(np.abs(r) / np.sqrt(s2), valid)) ** 2
                    * n_eff / np.maximum(n_eff - 6, 1.0))
-    g = np.column_stack([-a[:, 1], -a[:, 2], np.full(m, h_mm)])
+    g = np.column_stack([-a[:, 1], -a[:, 2], h_mm[:, 0]])
     g /= np.linalg.norm(g, axis=1)[:, None]
     normal = g[:, :1] * t1 + g[:, 1:2] * t2 + g[:, 2:] * nrm
-    cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm
+    cen = np.hypot(np.einsum("mi,mi->m", c, t1), np.einsum("mi,mi->m", c, t2)) / h_mm[:, 0]
     return {"offset": a[:, 0], "normal": normal, "frame_normal": nrm, "var": var,
             "chi2": chi2, "chi2_robust": chi2_robust, "n_eff": n_eff,
             "rejected": 1 - sw_f / wq.sum(axis=1), "centred": cen, "s2": s2, "w": w, "w0": w0,

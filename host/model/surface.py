@@ -71,6 +71,10 @@ FOOTPRINT_K = 0.5        # the footprint's error along the normal, in spot radii
 MIN_TRAVEL_MM = 0.05     # a waveform whose shots moved less than this stood still
 SCATTER_VERTICES = 64    # the scatter factor's neighbourhood: this many supported vertices...
 SCATTER_RADIUS = 2.0     # ... within this many support radii
+WIDER = (1.0, 1.3, 1.7)  # the support radii a vertex's fit may take, in R's: the widest whose
+WIDER_GAMMA = 2.0        # height stays within this many stds of every narrower one's (the
+# intersection of confidence intervals): wider where the surface is smooth (less noise), not
+# across an edge or a turn (more bias)
 
 
 @dataclass
@@ -265,6 +269,41 @@ def _mesh(f: np.ndarray, origin: np.ndarray, spacing: float) -> tuple[trimesh.Tr
     return mesh, len(parts) - 1
 
 
+def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarray,
+                  point_var: np.ndarray, ref: np.ndarray, R: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Each centre's support radius (m,) mm among WIDER x R: the quadratic fitted at each
+    (local_fit, weight scale half of it, neighbours Q (m, K, 3) at dist (m, K) mm, inf: none)
+    gives a height along ref with a std (its points' noise propagated: a misfit widening it
+    would hide the very shift the test looks for); a radius is taken while the heights'
+    +-WIDER_GAMMA std intervals, its and every narrower one's, still overlap (the
+    intersection of confidence intervals: the noise falls as the radius grows until the
+    surface's turn shows as a shift) and its chi-square stays within EDGE_MISFIT of its stds
+    of the narrowest one's (or of 1). Returns the
+    radii and the squared shift (mm^2) of the taken height from the narrowest one beyond what
+    their noise explains (the narrower's variance less the wider's): a bias the intervals
+    let through, for the vertex's variance."""
+    lo, hi = np.full(len(x), -np.inf), np.full(len(x), np.inf)
+    out, going = np.full(len(x), R), np.ones(len(x), bool)
+    z0 = var0 = z_at = var_at = chi0 = np.zeros(len(x))
+    for f in WIDER:
+        valid = dist <= f * R
+        fit = local_fit(x, Q, valid, cov, f * R / 2, ref_normal=ref,
+                        curvature_prior=CURVATURE_PRIOR, point_var=point_var)
+        z = fit["offset"] * np.einsum("mi,mi->m", fit["frame_normal"], ref)
+        sd = np.sqrt(fit["var"])  # the points' noise only: a misfit is what it must show
+        lo, hi = np.maximum(lo, z - WIDER_GAMMA * sd), np.minimum(hi, z + WIDER_GAMMA * sd)
+        if f == WIDER[0]:
+            z0, var0, z_at, var_at = z, sd ** 2, z.copy(), sd ** 2
+            chi0 = np.maximum(fit["chi2"], 1.0)
+        # and while the quadratic still fits its points as well as the narrowest did (two
+        # faces at a corner can leave the heights alike and still not be one surface)
+        fits = fit["chi2"] <= chi0 + EDGE_MISFIT * np.sqrt(2 / np.maximum(fit["n_eff"] - 6, 1))
+        going &= (lo <= hi) & np.isfinite(sd) & fits
+        out[going], z_at[going], var_at[going] = f * R, z[going], sd[going] ** 2
+    return out, np.maximum((z_at - z0) ** 2 - np.maximum(var0 - var_at, 0.0), 0.0)
+
+
 def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                   spacing_mm: float = 1.0, support_radius_mm: float | None = None,
                   min_support: int = 10, *, cov_common: np.ndarray | None = None,
@@ -340,7 +379,9 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     ref = np.array(mesh.vertex_normals, float)
     support = np.asarray(tree.query_ball_point(V, R, return_length=True, workers=-1), np.int32)
     Kq = int(min(max(max_neighbours, 1.2 * np.median(support)), 4 * max_neighbours, len(P)))
+    Kq = int(min(np.ceil(Kq * WIDER[-1] ** 2), len(P)))  # as many more for the widest radius
     chunk = max(1000, 1_000_000 // Kq)
+    radius = np.full(len(V), R)
     sigma = np.full(len(V), np.nan)
     normals = ref.copy()
     supported = np.zeros(len(V), bool)
@@ -349,24 +390,30 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     n_edges = 0
     for lo in range(0, len(V), chunk):
         sl = slice(lo, lo + chunk)
-        dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R, workers=-1)
+        dist, idx = tree.query(V[sl], k=Kq, distance_upper_bound=R * WIDER[-1], workers=-1)
         dist, idx = dist.reshape(-1, Kq), idx.reshape(-1, Kq)
-        valid = np.isfinite(dist)
-        fit_ok = valid.sum(axis=1) >= max(min_support, 6)
+        fit_ok = (dist <= R).sum(axis=1) >= max(min_support, 6)
         sel = np.flatnonzero(fit_ok)
         if len(sel) == 0:
             continue
-        ii = np.where(valid[sel], idx[sel], 0)
-        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], h, ref_normal=ref[sl][sel],
+        ii = np.where(np.isfinite(dist[sel]), idx[sel], 0)
+        Rv, shift2 = _wider_radius(V[sl][sel], P[ii], dist[sel], own[ii], pvar[ii],
+                                   ref[sl][sel], R)
+        radius[sl][sel] = Rv
+        hv = Rv / 2
+        valid = dist <= np.full(len(dist), R)[:, None]
+        valid[sel] = dist[sel] <= Rv[:, None]
+        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], hv, ref_normal=ref[sl][sel],
                       curvature_prior=CURVATURE_PRIOR, point_var=pvar[ii])
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
         var_c = (w * (sc + fp_var[ii])).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
-        good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < R / 2)
+        good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < Rv / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
                 & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))
-        wl = valid[sel] * np.exp(-0.5 * (np.where(valid[sel], dist[sel], 0) / (h / 2)) ** 2)
+        wl = valid[sel] * np.exp(-0.5 * (np.where(valid[sel], dist[sel], 0)
+                                         / (hv[:, None] / 2)) ** 2)
         swl = wl.sum(axis=1)
         chi2_l = (wl * r["r"] ** 2 / r["s2"]).sum(axis=1) / swl
         ne_l = swl ** 2 / (wl * wl).sum(axis=1)
@@ -381,12 +428,13 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         e = np.flatnonzero(good & rounded & two_faces)  # only these get the two-plane fits
         if len(e):
             k = edge_fit(V[sl][sel][e], P[ii[e]], valid[sel][e], own[ii[e]], normals_p[ii[e]],
-                         pvar[ii[e]], h, nn[e])
+                         pvar[ii[e]], hv[e], nn[e])
             take = (k["ok"] & (k["chi2"] < EDGE_BETTER * r["chi2"][e])
-                    & (np.abs(k["t"]) < R / 2) & (np.abs(k["t"] - r["offset"][e]) < R / 4))
+                    & (np.abs(k["t"]) < Rv[e] / 2) & (np.abs(k["t"] - r["offset"][e]) < Rv[e] / 4))
             e, n_edges = e[take], n_edges + int(take.sum())
             move[e], fit_var[e], nrm_v[e] = k["t"][take], k["var"][take], k["normal"][take]
             chi2[e], n_eff[e], bias2[e] = k["chi2"][take], k["n_eff"][take], 0.0
+            shift2[e] = 0.0
             chi2_fit[e] = k["chi2"][take]
         g = sel[good] + lo
         offset[g] = move[good]
@@ -401,7 +449,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         infl[g] = np.where(misfit, chi2, np.nan)
         chi2_w[g] = chi2_fit[good]
         nu[g] = np.maximum(n_eff[good] - 6, 1.0)
-        var_rest[g] = var_c[good] + bias2 + var_r
+        var_rest[g] = var_c[good] + bias2 + shift2[good] + var_r
         supported[g] = True
     lam = _scatter_factor(V, supported, chi2_w, nu, SCATTER_RADIUS * R)
     sigma[supported] = np.sqrt(var_fit[supported] * np.where(
@@ -409,6 +457,8 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     mesh = trimesh.Trimesh(V, mesh.faces, process=False)
     normals[~supported] = np.array(mesh.vertex_normals, float)[~supported]
     params = {"spacing_mm": s, "support_radius_mm": R, "weight_scale_mm": h,
+              "wider_radius_share": {f"{f:g}": float(np.mean(np.isclose(
+                  radius[supported], f * R))) if supported.any() else 0.0 for f in WIDER},
               "min_support": min_support, "max_offcentre": max_offcentre,
               "point_spacing_mm": gap, "n_points": int(len(P)),
               "n_dropped_nonfinite": int((~ok).sum()), "grid_shape": list(shape),

@@ -37,12 +37,14 @@ STD_MM = {"oa": 0.06, "us": 0.15}  # the distances' noise (the paper's figures)
 def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fly=False,
                   x_step_mm=0.7):
     """A finished scan of a cylinder of RADIUS_MM about the table's axis: per table angle and
-    level a line across it, both modalities' distances with the noise their SNR gives."""
+    level a line across it, both modalities' distances with the noise their SNR gives. The
+    calibration it records is the true one with stds too small to matter: the distances
+    carry no calibration error, so a model's sigma is checked on its own part."""
     setup = true_setup(SensorModel())
     rng = np.random.default_rng(seed)
     path = db / "scans" / f"{scan_id}.h5"
     cal = {"v": V.tolist(), "n": N.tolist(), "X_R": X_R.tolist(),
-           "v_std": [1e-4, 1e-5, 1e-4], "n_std": [1e-4, 1e-4, 1e-5], "X_R_std": [0.01, 0.01, 0.0]}
+           "v_std": [1e-5, 1e-6, 1e-5], "n_std": [1e-5, 1e-5, 1e-6], "X_R_std": [0.001, 0.001, 0.0]}
     w = ScanWriter.create(path, scan_id=scan_id, plan_text="", plan_hash="h", n_samples=8,
                           sensor={"board": "test"}, calibration=cal, calibration_toml="",
                           ranging_json=setup.to_json(),
@@ -102,7 +104,7 @@ def test_the_model_lies_on_the_true_surface_within_its_sigma(built):
     assert sup.sum() > 2000
     assert np.abs(err).mean() < 0.03          # the points' own std is 0.03-0.1 mm
     z = err / m.sigma_mm[sup]
-    assert 0.6 < np.sqrt(np.mean(z ** 2)) < 1.5
+    assert 0.8 < np.sqrt(np.mean(z ** 2)) < 1.25
     assert m.summary["outliers"] < 0.02 * m.summary["points"]
     # the closed surface's caps were never scanned: unsupported, sigma NaN, not invented
     top = m.vertices_mm[:, 2] > BAND_MM[1] + 5

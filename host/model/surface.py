@@ -269,9 +269,12 @@ def _mesh(f: np.ndarray, origin: np.ndarray, spacing: float) -> tuple[trimesh.Tr
     return mesh, len(parts) - 1
 
 
+_PER_POINT = {"s2": 1.0, "w": 0.0, "w0": 0.0, "r": 0.0, "g0": 0.0}  # local_fit's (m, K) parts
+
+
 def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarray,
                   point_var: np.ndarray, ref: np.ndarray, R: float
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Each centre's support radius (m,) mm among WIDER x R: the quadratic fitted at each
     (local_fit, weight scale half of it, neighbours Q (m, K, 3) at dist (m, K) mm, inf: none)
     gives a height along ref with a std (its points' noise propagated: a misfit widening it
@@ -279,17 +282,23 @@ def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarra
     +-WIDER_GAMMA std intervals, its and every narrower one's, still overlap (the
     intersection of confidence intervals: the noise falls as the radius grows until the
     surface's turn shows as a shift) and its chi-square stays within EDGE_MISFIT of its stds
-    of the narrowest one's (or of 1). Returns the
-    radii and the squared shift (mm^2) of the taken height from the narrowest one beyond what
-    their noise explains (the narrower's variance less the wider's): a bias the intervals
-    let through, for the vertex's variance."""
+    of the narrowest one's (or of 1). Returns the radii, the squared shift (mm^2) of the
+    taken height from the narrowest one beyond what their noise explains (the narrower's
+    variance less the wider's: a bias the intervals let through, for the vertex's variance)
+    and each centre's fit at its radius (local_fit's dict, per-neighbour parts over all K;
+    dist is sorted along each row, as cKDTree gives it, so a radius's neighbours lead)."""
     lo, hi = np.full(len(x), -np.inf), np.full(len(x), np.inf)
     out, going = np.full(len(x), R), np.ones(len(x), bool)
-    z0 = var0 = z_at = var_at = chi0 = np.zeros(len(x))
-    for f in WIDER:
+    z0, var0, z_at, var_at, chi0 = (np.zeros(len(x)) for _ in range(5))
+    K = dist.shape[1]
+    pick = np.zeros(len(x), np.int64)
+    fits = []
+    for j, f in enumerate(WIDER):
         valid = dist <= f * R
-        fit = local_fit(x, Q, valid, cov, f * R / 2, ref_normal=ref,
-                        curvature_prior=CURVATURE_PRIOR, point_var=point_var)
+        k = max(int(valid.sum(axis=1).max(initial=0)), 1)  # the rows' leading neighbours
+        fit = local_fit(x, Q[:, :k], valid[:, :k], cov[:, :k], f * R / 2, ref_normal=ref,
+                        curvature_prior=CURVATURE_PRIOR, point_var=point_var[:, :k])
+        fits.append(fit)
         z = fit["offset"] * np.einsum("mi,mi->m", fit["frame_normal"], ref)
         sd = np.sqrt(fit["var"])  # the points' noise only: a misfit is what it must show
         lo, hi = np.maximum(lo, z - WIDER_GAMMA * sd), np.minimum(hi, z + WIDER_GAMMA * sd)
@@ -298,10 +307,17 @@ def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarra
             chi0 = np.maximum(fit["chi2"], 1.0)
         # and while the quadratic still fits its points as well as the narrowest did (two
         # faces at a corner can leave the heights alike and still not be one surface)
-        fits = fit["chi2"] <= chi0 + EDGE_MISFIT * np.sqrt(2 / np.maximum(fit["n_eff"] - 6, 1))
-        going &= (lo <= hi) & np.isfinite(sd) & fits
-        out[going], z_at[going], var_at[going] = f * R, z[going], sd[going] ** 2
-    return out, np.maximum((z_at - z0) ** 2 - np.maximum(var0 - var_at, 0.0), 0.0)
+        alike = fit["chi2"] <= chi0 + EDGE_MISFIT * np.sqrt(2 / np.maximum(fit["n_eff"] - 6, 1))
+        going &= (lo <= hi) & np.isfinite(sd) & alike
+        out[going], z_at[going], var_at[going], pick[going] = f * R, z[going], sd[going] ** 2, j
+    chosen = {}
+    for key in fits[0]:
+        parts = [ft[key] if key not in _PER_POINT else np.pad(
+            ft[key], ((0, 0), (0, K - ft[key].shape[1])), constant_values=_PER_POINT[key])
+            for ft in fits]
+        chosen[key] = np.choose(pick.reshape((-1,) + (1,) * (parts[0].ndim - 1)), parts)
+    shift2 = np.maximum((z_at - z0) ** 2 - np.maximum(var0 - var_at, 0.0), 0.0)
+    return out, shift2, chosen
 
 
 def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
@@ -397,14 +413,12 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         if len(sel) == 0:
             continue
         ii = np.where(np.isfinite(dist[sel]), idx[sel], 0)
-        Rv, shift2 = _wider_radius(V[sl][sel], P[ii], dist[sel], own[ii], pvar[ii],
-                                   ref[sl][sel], R)
+        Rv, shift2, r = _wider_radius(V[sl][sel], P[ii], dist[sel], own[ii], pvar[ii],
+                                      ref[sl][sel], R)
         radius[sl][sel] = Rv
         hv = Rv / 2
-        valid = dist <= np.full(len(dist), R)[:, None]
+        valid = dist <= R
         valid[sel] = dist[sel] <= Rv[:, None]
-        r = local_fit(V[sl][sel], P[ii], valid[sel], own[ii], hv, ref_normal=ref[sl][sel],
-                      curvature_prior=CURVATURE_PRIOR, point_var=pvar[ii])
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)

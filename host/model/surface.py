@@ -289,7 +289,6 @@ def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarra
     dist is sorted along each row, as cKDTree gives it, so a radius's neighbours lead)."""
     lo, hi = np.full(len(x), -np.inf), np.full(len(x), np.inf)
     out, going = np.full(len(x), R), np.ones(len(x), bool)
-    z0, var0, z_at, var_at, chi0 = (np.zeros(len(x)) for _ in range(5))
     K = dist.shape[1]
     pick = np.zeros(len(x), np.int64)
     fits = []
@@ -302,7 +301,7 @@ def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarra
         z = fit["offset"] * np.einsum("mi,mi->m", fit["frame_normal"], ref)
         sd = np.sqrt(fit["var"])  # the points' noise only: a misfit is what it must show
         lo, hi = np.maximum(lo, z - WIDER_GAMMA * sd), np.minimum(hi, z + WIDER_GAMMA * sd)
-        if f == WIDER[0]:
+        if j == 0:  # the narrowest: what the wider ones are held to
             z0, var0, z_at, var_at = z, sd ** 2, z.copy(), sd ** 2
             chi0 = np.maximum(fit["chi2"], 1.0)
         # and while the quadratic still fits its points as well as the narrowest did (two
@@ -412,13 +411,12 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         sel = np.flatnonzero(fit_ok)
         if len(sel) == 0:
             continue
-        ii = np.where(np.isfinite(dist[sel]), idx[sel], 0)
-        Rv, shift2, r = _wider_radius(V[sl][sel], P[ii], dist[sel], own[ii], pvar[ii],
-                                      ref[sl][sel], R)
+        ds, Vs = dist[sel], V[sl][sel]
+        ii = np.where(np.isfinite(ds), idx[sel], 0)
+        Rv, shift2, r = _wider_radius(Vs, P[ii], ds, own[ii], pvar[ii], ref[sl][sel], R)
         radius[sl][sel] = Rv
         hv = Rv / 2
-        valid = dist <= R
-        valid[sel] = dist[sel] <= Rv[:, None]
+        vs = ds <= Rv[:, None]  # each vertex's neighbours within its own radius
         w = r["w"]
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
@@ -426,8 +424,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < Rv / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
                 & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))
-        wl = valid[sel] * np.exp(-0.5 * (np.where(valid[sel], dist[sel], 0)
-                                         / (hv[:, None] / 2)) ** 2)
+        wl = vs * np.exp(-0.5 * (np.where(vs, ds, 0) / (hv[:, None] / 2)) ** 2)
         swl = wl.sum(axis=1)
         chi2_l = (wl * r["r"] ** 2 / r["s2"]).sum(axis=1) / swl
         ne_l = swl ** 2 / (wl * wl).sum(axis=1)
@@ -436,12 +433,12 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                          (chi2_l - 1) * ms2_l, 0.0)
         move, fit_var, n_eff = r["offset"].copy(), r["var"].copy(), r["n_eff"].copy()
         nrm_v, chi2, chi2_fit = r["normal"].copy(), r["chi2_robust"].copy(), r["chi2"].copy()
-        spread = np.where(valid[sel], np.einsum("mki,mi->mk", normals_p[ii], nn), 1.0).min(1)
+        spread = np.where(vs, np.einsum("mki,mi->mk", normals_p[ii], nn), 1.0).min(1)
         rounded = r["chi2"] > 1 + EDGE_MISFIT * np.sqrt(2 / np.maximum(r["n_eff"] - 6, 1))
         two_faces = (bias2 > 0) | (spread < np.cos(np.radians(MIN_ANGLE_DEG / 2)))
         e = np.flatnonzero(good & rounded & two_faces)  # only these get the two-plane fits
         if len(e):
-            k = edge_fit(V[sl][sel][e], P[ii[e]], valid[sel][e], own[ii[e]], normals_p[ii[e]],
+            k = edge_fit(Vs[e], P[ii[e]], vs[e], own[ii[e]], normals_p[ii[e]],
                          pvar[ii[e]], hv[e], nn[e])
             take = (k["ok"] & (k["chi2"] < EDGE_BETTER * r["chi2"][e])
                     & (np.abs(k["t"]) < Rv[e] / 2) & (np.abs(k["t"] - r["offset"][e]) < Rv[e] / 4))
@@ -458,7 +455,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         misfit = chi2 > 1 + CHI2_SIGNIFICANT * np.sqrt(
             2 / (MAD_EFFICIENCY * np.maximum(n_eff[good] - 6, 1)))
         var_r = 0.0 if repeat is None else _repeated(
-            r["g0"], valid[sel], np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
+            r["g0"], vs, np.einsum("mi,mkij,mj->mk", nn, repeat[ii], nn), grp[ii])[good]
         var_fit[g] = fit_var[good]
         infl[g] = np.where(misfit, chi2, np.nan)
         chi2_w[g] = chi2_fit[good]

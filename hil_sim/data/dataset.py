@@ -4,9 +4,9 @@ measured as `dmdsm scan` would, for classification tests and benchmarks.
 `python -m dmdsm.sim.data.dataset --out DB --points 24 --seed 0` writes DB/scans/*.h5 and the
 catalogue. Points come in raster lines of LINE positions across the object's face at a random
 height and a table angle near 0/90/180/270 deg, as a scan plan takes them; waveforms are
-averaged like the board does; distances come from the host's ranging (PointRanger, with the
-previous point of the line for lone pulses) with the emulator's true t0 and c, so the files
-match real scans.
+averaged as the board's core does (each shot from its own sampling phase); distances come
+from the host's ranging (PointRanger, with the previous point of the line for lone pulses)
+with the emulator's true t0 and c, so the files match real scans.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from dmdsm.host.scan.catalogue import connect, record
 from dmdsm.host.scan.plan import ScanPlan, point_ranger
 from dmdsm.host.scan.scanfile import PHASES, ScanWriter
 
-from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ
+from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ, averaged_shots
 from ..physics.objects import HOUSEHOLD, bounding_size, household
 from ..physics.scene import Scene, table_frame
-from ..physics.signals import MATERIALS, SensorModel, received, synthesize, to_adc
+from ..physics.signals import MATERIALS, SensorModel, received
 
 US_ONLY, OA_ONLY = {"glass", "steel"}, {"foam"}
 LINE = 8  # points per raster line
@@ -73,7 +73,6 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
         calibration_toml="", ranging_json=setup.to_json(),
         sample={"name": name, "material": material, "notes": "hil_sim dataset"},
         program_version="sim")
-    period = int(round(TICK_HZ / ADC_RATE_HZ))
     previous = None
     for i in range(points):
         if i % LINE == 0:  # a new raster line: one table angle and height, X across the face
@@ -84,11 +83,7 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
         x = x0 + (i % LINE) * 0.7 * w / (LINE - 1)
         front = scene.X_R + B @ np.array([x, 0.0, z]) - (radius + 8.0) * v
         hit = scene.cast(front, theta)
-        phase = int(rng.integers(1, period + 1))
-        t_us = (np.arange(n_samples) / ADC_RATE_HZ + phase / TICK_HZ) * 1e6
-        shots = [to_adc(synthesize(hit, model, t_us, rng, seed), model).astype(float)
-                 for _ in range(average)]
-        wave = np.rint(np.mean(shots, axis=0)).astype(np.uint16)
+        wave, phase = averaged_shots(hit, model, n_samples, average, rng, seed)
         r = ranger(wave, phase, 0, previous)
         found = {m: val for m, val in r.items() if np.isfinite(val[0])}
         previous = (next(iter(found.values()))[0] if found else np.nan,  # as run_scan does

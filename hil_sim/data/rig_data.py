@@ -20,10 +20,10 @@ import numpy as np
 from dmdsm.host.calibration.procedure import RigPlan, scan_rig
 from dmdsm.host.calibration.rig_file import append_rows
 
-from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ
+from ..boards.sensor.core_board import ADC_RATE_HZ, TICK_HZ, averaged_shots
 from ..physics.objects import rig_horizontal, rig_vertical
 from ..physics.scene import TABLE_I_N, TABLE_I_V, TABLE_I_XR, Scene, hash_noise, table_frame
-from ..physics.signals import SensorModel, synthesize, to_adc
+from ..physics.signals import SensorModel
 from .dataset import true_setup
 
 
@@ -82,15 +82,11 @@ class DirectRig:
         """n_shots waveforms, each the mean of n_average laser shots, as the board sends."""
         S, th = self.pose()
         hit = self.scene.cast(S, th)
-        period = int(round(TICK_HZ / ADC_RATE_HZ))
         n, avg = int(self.cfg["n_samples"]), int(self.cfg["n_average"])
         waves, phases = [], []
         for _ in range(n_shots):
-            phase = int(self.rng.integers(1, period + 1))
-            t_us = (np.arange(n) / ADC_RATE_HZ + phase / TICK_HZ) * 1e6
-            shots = [to_adc(synthesize(hit, self.model, t_us, self.rng, self.seed),
-                            self.model).astype(float) for _ in range(avg)]
-            waves.append(np.rint(np.mean(shots, axis=0)).astype(np.uint16))
+            wave, phase = averaged_shots(hit, self.model, n, avg, self.rng, self.seed)
+            waves.append(wave)
             phases.append(phase)
         return _Shots(np.array(waves), np.ones(n_shots, bool), np.array(phases))
 

@@ -50,6 +50,25 @@ class SyncWire:
         return e
 
 
+def averaged_shots(hit: Hit, model: SensorModel, n_samples: int, n_average: int,
+                   rng: np.random.Generator, seed: int = 0,
+                   fs_hz: float = ADC_RATE_HZ) -> tuple[np.ndarray, int]:
+    """One waveform as the core averages it (acquire.c): n_average shots of one hit, each
+    sampled from its own random start phase (the ADC runs free of the laser), summed and
+    rounded, with the phases' rounded mean as the trigger phase. The phases' spread (one
+    sample, 0.3 us at 3.333 MS/s) low-passes the average; a generator that gave every shot
+    one phase would make waveforms sharper than the board's. Returns (uint16 samples,
+    trigger phase in ticks)."""
+    period = int(round(TICK_HZ / fs_hz))
+    total = np.zeros(n_samples, np.int64)
+    phases = rng.integers(1, period + 1, size=n_average)
+    for phase in phases:
+        t_us = (np.arange(n_samples) / fs_hz + int(phase) / TICK_HZ) * 1e6
+        total += to_adc(synthesize(hit, model, t_us, rng, seed), model).astype(np.int64)
+    wave = ((total + n_average // 2) // n_average).astype(np.uint16)
+    return wave, int((int(phases.sum()) + n_average // 2) // n_average)
+
+
 class SensorBoard:
     """One emulated NUCLEO: firmware core + laser + physics + link pacing."""
 

@@ -11,6 +11,7 @@ import pytest
 
 from dmdsm.host.classify import materials as classify
 from dmdsm.host.classify.materials import (
+    WINDOW,
     ClassifyError,
     assemble,
     evaluate_random,
@@ -121,7 +122,7 @@ def test_model_file_predicts_and_refuses_other_sample_rates(db, model, tmp_path,
     assert len(err.strip().splitlines()) == 1
     rc, out, err = run(capsys, "classify", "predict", "--model", str(model), "--scan",
                        str(scan), "--window", "96")
-    assert rc == 2 and "trained on 128-sample windows, not 96" in err
+    assert rc == 2 and f"trained on {WINDOW}-sample windows, not 96" in err
     (tmp_path / "junk.model").write_bytes(b"not a model")
     rc, out, err = run(capsys, "classify", "predict", "--model",
                        str(tmp_path / "junk.model"), "--scan", str(scan))

@@ -36,8 +36,9 @@ def test_boss_word_windows_fit_in_every_accepted_window(window):
         assert shortest == BOSS_WORD_MIN
 
 
-def test_the_default_window_keeps_the_word_windows_it_had():
-    assert boss_word_windows(WINDOW) == (16, 43)
+def test_the_word_windows_scale_with_the_window():
+    assert boss_word_windows(128) == (16, 43)  # the default before the OA window was cut
+    assert boss_word_windows(WINDOW) == (16, 21)  # to end before the US echo (64)
 
 
 @SLOW

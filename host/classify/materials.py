@@ -23,7 +23,8 @@ from ..scan.scanfile import ScanData, read_scan
 MODS = ("oa", "us")
 BOSS_PER_CLASS = 20  # BOSS trains on at most this many windows per class and modality:
 # its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set), 20-40 s per fit here
-WINDOW = 128  # samples per window (38.4 us at 3.333 MS/s)
+WINDOW = 64  # samples per window (19.2 us at 3.333 MS/s): an OA window then ends before the
+# US echo, which follows the OA arrival by t0_US - t0_OA + d/c (2 us + d/c here), beyond d = 5 mm
 PRE = 8       # samples kept before the arrival
 SHORTEST_WINDOW = 16  # samples (4.8 us): the shortest window either classifier is given
 BOSS_WORD_MIN = 16    # BOSS's shortest word window, samples, where the window allows it
@@ -143,9 +144,9 @@ def assemble(paths: list[Path], window: int = WINDOW) -> Dataset:
 
 def boss_word_windows(window: int) -> tuple[int, int]:
     """BOSS's word windows (shortest, longest) in samples for windows of `window` samples:
-    16..43 for the default 128 (4.5-12 us: a few carrier cycles to one pulse); a window too
-    short for 16 (47 samples or fewer) gets one word window of 0.34 of it, the longest that
-    fits, instead of aeon's ValueError."""
+    16 up to 0.34 of the window (16..21 for the default 64, 4.8-6.3 us: a few carrier
+    cycles; 16..43 for 128); a window too short for 16 (47 samples or fewer) gets one word
+    window of 0.34 of it, the longest that fits, instead of aeon's ValueError."""
     longest = int(window * BOSS_WORD_PROP)
     return min(BOSS_WORD_MIN, longest), longest
 
@@ -203,9 +204,18 @@ class FusedModel:
     # BOSS only: the windows and labels each modality's model was fit on (a model file keeps
     # them and refits; BOSS's fitted dictionaries are not arrays)
 
-    def predict_proba(self, ds: Dataset) -> np.ndarray:
-        """(n, n_classes) probabilities."""
-        logp = np.log(self.prior)[None, :] + np.log(self.pattern[_pattern(ds)])
+    def predict_proba(self, ds: Dataset, us_absence_said: np.ndarray | None = None
+                      ) -> np.ndarray:
+        """(n, n_classes) probabilities. us_absence_said (n,) bool (None: all True): whether
+        a point without a US window says its material gives no echo; False where the geometry
+        explains the silence (the surface turned beyond the echo's cone, which no material
+        escapes): that point's pattern term is then the odds of its OA presence alone."""
+        pat = _pattern(ds)
+        like = self.pattern[pat]
+        if us_absence_said is not None:
+            free = ~np.asarray(us_absence_said, bool) & (pat < 2)  # no US window: marginalise
+            like[free] = self.pattern[pat[free]] + self.pattern[pat[free] + 2]
+        logp = np.log(self.prior)[None, :] + np.log(like)
         for m, model in self.models.items():
             idx = np.nonzero(ds.has[m])[0]
             if len(idx):

@@ -17,9 +17,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..calibration.result import joint_covariance
-from ..classify.materials import ClassifyError, FusedModel, scan_dataset
+from ..classify.materials import WINDOW, ClassifyError, FusedModel, scan_dataset
 from ..classify.model_file import check_provenance, load_model
 from ..ranging.calibrate import RangingSetup
+from ..scan.auto import US_MAX_INCIDENCE_DEG
 from ..scan.catalogue import list_scans, verify
 from ..scan.points import MODS, scan_points
 from ..scan.reconstruct import object_points
@@ -135,12 +136,15 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
 
 
 def waveform_probabilities(scan: ScanData, classifier: tuple[FusedModel, dict],
-                           model_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                           model_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                      np.ndarray]:
     """Object-frame places (k, 3, mm) of the scan's waveforms the classifier can use (the OA
-    point, else the US point), its probabilities for them (k, classes) and their rows in
-    the file (k,)."""
+    point, else the US point), its probabilities for them (k, classes), their rows in the
+    file (k,) and, for the ones without a US window, the probabilities were that silence
+    the geometry's (k, classes; the first where there is an echo): `geometric_silence`
+    chooses once the surface is known."""
     model, prov = classifier
-    ds = scan_dataset(scan, int(prov.get("window", 128)))
+    ds = scan_dataset(scan, int(prov.get("window", WINDOW)))
     check_provenance(prov, model_path, ds.fs_hz, ds.window)
     pts = scan_points(scan)
     place = np.full((scan.n_points, 3), np.nan)
@@ -149,8 +153,40 @@ def waveform_probabilities(scan: ScanData, classifier: tuple[FusedModel, dict],
     rows = ds.usable(model.modalities)
     rows = rows[np.all(np.isfinite(place[rows]), axis=1)]
     if not len(rows):
-        return np.zeros((0, 3)), np.zeros((0, len(model.classes))), np.zeros(0, np.int64)
-    return place[rows], np.asarray(model.predict_proba(ds.subset(rows)), float), rows
+        empty = np.zeros((0, len(model.classes)))
+        return np.zeros((0, 3)), empty, np.zeros(0, np.int64), empty
+    sub = ds.subset(rows)
+    said = np.asarray(model.predict_proba(sub), float)
+    unsaid = np.asarray(model.predict_proba(sub, np.zeros(len(rows), bool)), float)
+    return place[rows], said, rows, unsaid
+
+
+def geometric_silence(places_mm: np.ndarray, view: np.ndarray, has_us: np.ndarray,
+                      vertices_mm: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Which waveforms (k,) lack a US echo because of the geometry: the nearest vertex's
+    normal more than US_MAX_INCIDENCE_DEG from the beam (view: unit vectors toward the
+    sensor). A US echo is specular, so beyond that no material returns one; the silence
+    says nothing of the material there (the classifier learns standing, head-on shots,
+    where it does: glass and steel give no OA, foam no echo)."""
+    if not len(places_mm):
+        return np.zeros(0, bool)
+    _, i = cKDTree(vertices_mm).query(places_mm)
+    cos = np.abs(np.sum(normals[i] * view, axis=1))
+    return ~np.asarray(has_us, bool) & (cos < np.cos(np.radians(US_MAX_INCIDENCE_DEG)))
+
+
+def row_view(points: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
+    """The unit vector (k, 3) toward the sensor of each row's point in a scan_point_set
+    (NaN where the row has none)."""
+    out = np.full((len(rows), 3), np.nan)
+    rows = np.asarray(rows, np.int64)
+    if not len(rows):
+        return out
+    slot = np.full(int(max(rows.max(), np.max(points["index"], initial=-1))) + 1, -1)
+    slot[rows] = np.arange(len(rows))
+    i = slot[np.asarray(points["index"], np.int64)]
+    out[i[i >= 0]] = points["view"][i >= 0]  # a row's OA and US points share the beam
+    return out
 
 
 def row_travel(points: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
@@ -247,6 +283,7 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
             raise ModelError(str(e)) from None
     t0 = time.monotonic()
     parts, places, probs, travels, sources = [], [], [], [], []
+    free_probs, views, echoes = [], [], []
     for k, row in enumerate(rows):
         try:
             scan = read_scan(Path(row["path"]), waveforms=clf is not None)
@@ -257,11 +294,14 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
         parts.append(one)
         if clf is not None:
             try:
-                where, p, used = waveform_probabilities(scan, clf, Path(classifier))
+                where, p, used, p_free = waveform_probabilities(scan, clf, Path(classifier))
             except ClassifyError as e:
                 raise ModelError(f"scan {row['scan_id']}: {e}") from None
             places.append(where)
             probs.append(p)
+            free_probs.append(p_free)
+            views.append(row_view(one, used))
+            echoes.append(np.isfinite(scan.points["distance_us_mm"][used]))
             travels.append(row_travel(one, used))
         sources.append({"scan_id": row["scan_id"], "content_hash": row["content_hash"],
                         "material": row.get("material", "")})
@@ -292,7 +332,10 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
         classes = [str(c) for c in clf[0].classes]
         where = np.concatenate(places)
         smear = depth_smear_mm(where, np.concatenate(travels), surf.vertices_mm, surf.normals)
-        prob = vertex_materials(surf.vertices_mm, where, np.concatenate(probs), smear_mm=smear)
+        silent = geometric_silence(where, np.concatenate(views), np.concatenate(echoes),
+                                   surf.vertices_mm, surf.normals)
+        p = np.where(silent[:, None], np.concatenate(free_probs), np.concatenate(probs))
+        prob = vertex_materials(surf.vertices_mm, where, p, smear_mm=smear)
     model = ObjectModel(
         object_id=object_id, version=0,
         created=utc_now(), sources=sources,

@@ -1,12 +1,14 @@
 """A scan database made straight from the physics (no serial link): household objects
 measured as `dmdsm scan` would, for classification tests and benchmarks.
 
-`python -m dmdsm.sim.data.dataset --out DB --points 24 --seed 0` writes DB/scans/*.h5 and the
-catalogue. Points come in raster lines of LINE positions across the object's face at a random
-height and a table angle near 0/90/180/270 deg, as a scan plan takes them; waveforms are
-averaged as the board's core does (each shot from its own sampling phase); distances come
-from the host's ranging (PointRanger, with the previous point of the line for lone pulses)
-with the emulator's true t0 and c, so the files match real scans.
+`python -m dmdsm.sim.data.dataset --out DB --points 24 --seed 0 [--fly-mm 4]` writes
+DB/scans/*.h5 and the catalogue. Points come in raster lines of LINE positions across the
+object's face at a random height and a table angle near 0/90/180/270 deg, as a scan plan
+takes them; waveforms are averaged as the board's core does (each shot from its own
+sampling phase; with --fly-mm, from its own place along the line's travel, as a fly scan
+takes them); distances come from the host's ranging (PointRanger, with the previous point
+of the line for lone pulses) with the emulator's true t0 and c, so the files match real
+scans.
 """
 
 from __future__ import annotations
@@ -47,15 +49,19 @@ def true_setup(model: SensorModel) -> RangingSetup:
 
 
 def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
-                n_samples: int = 1024) -> Path:
-    """Measure `points` positions around one household object into DB; returns the file."""
+                n_samples: int = 1024, fly_mm: float = 0.0) -> Path:
+    """Measure `points` positions around one household object into DB; returns the file.
+    fly_mm > 0: as a fly scan does, each waveform's shots are spread evenly over a travel
+    along X, drawn per raster line from 0..fly_mm (the depth changes over it on a curved
+    face, which smears the pulse; docs/classification.md)."""
     material = HOUSEHOLD[name][0]
     obj = household(name)[0]
     w, dep, h = bounding_size(obj)
     radius = float(np.hypot(w, dep) / 2) if type(obj.shape).__name__ == "Box" else w / 2
     scene = Scene(objects=[obj])
     model = SensorModel()
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed)  # the shots' noise and phases
+    place = np.random.default_rng([seed, 1])  # the lines: the same places with or without fly
     v = scene.v / np.linalg.norm(scene.v)
     B = table_frame(scene.n)
     mod = "us" if material in US_ONLY else "oa" if material in OA_ONLY else "both"
@@ -76,13 +82,18 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
     previous = None
     for i in range(points):
         if i % LINE == 0:  # a new raster line: one table angle and height, X across the face
-            theta = float(90 * rng.integers(4) + rng.uniform(-15, 15))  # plan angles
-            z = float(rng.uniform(0.2, 0.8) * min(h, 80.0))
-            x0 = float(rng.uniform(-0.4, -0.2) * w)
+            theta = float(90 * place.integers(4) + place.uniform(-15, 15))  # plan angles
+            z = float(place.uniform(0.2, 0.8) * min(h, 80.0))
+            x0 = float(place.uniform(-0.4, -0.2) * w)
+            travel = float(place.uniform()) * fly_mm  # drawn either way: same places
             previous = None
         x = x0 + (i % LINE) * 0.7 * w / (LINE - 1)
         front = scene.X_R + B @ np.array([x, 0.0, z]) - (radius + 8.0) * v
-        hit = scene.cast(front, theta)
+        if travel > 0:  # one hit per shot along the travel, centred on this position
+            shots = (np.arange(average) + 0.5) / average - 0.5
+            hit = scene.cast_many(front + np.outer(travel * shots, B[:, 0]), theta)
+        else:
+            hit = scene.cast(front, theta)
         wave, phase = averaged_shots(hit, model, n_samples, average, rng, seed)
         r = ranger(wave, phase, 0, previous)
         found = {m: val for m, val in r.items() if np.isfinite(val[0])}
@@ -100,10 +111,10 @@ def scan_object(db: Path, name: str, points: int, seed: int, average: int = 16,
 
 
 def make_database(db: Path, points: int, seed: int = 0,
-                  objects: list[str] | None = None) -> list[Path]:
-    """Scan every household object (or the given ones) into DB."""
+                  objects: list[str] | None = None, fly_mm: float = 0.0) -> list[Path]:
+    """Scan every household object (or the given ones) into DB (fly_mm: see scan_object)."""
     connect(db, create=True).close()
-    return [scan_object(db, name, points, seed + k) for k, name in
+    return [scan_object(db, name, points, seed + k, fly_mm=fly_mm) for k, name in
             enumerate(objects or list(HOUSEHOLD))]
 
 
@@ -113,8 +124,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="database directory")
     ap.add_argument("--points", type=int, default=24, help="points per object")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fly-mm", type=float, default=0.0,
+                    help="fly lines: each waveform's shots spread over up to this travel (mm)")
     args = ap.parse_args(argv)
-    paths = make_database(args.out, args.points, args.seed)
+    if not 0.0 <= args.fly_mm <= 20.0:
+        ap.error(f"--fly-mm must be 0..20 mm (got {args.fly_mm:g})")
+    paths = make_database(args.out, args.points, args.seed, fly_mm=args.fly_mm)
     print(f"wrote {len(paths)} scans to {args.out}")
     return 0
 

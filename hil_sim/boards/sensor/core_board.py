@@ -50,21 +50,23 @@ class SyncWire:
         return e
 
 
-def averaged_shots(hit: Hit, model: SensorModel, n_samples: int, n_average: int,
+def averaged_shots(hit: Hit | list[Hit], model: SensorModel, n_samples: int, n_average: int,
                    rng: np.random.Generator, seed: int = 0,
                    fs_hz: float = ADC_RATE_HZ) -> tuple[np.ndarray, int]:
-    """One waveform as the core averages it (acquire.c): n_average shots of one hit, each
-    sampled from its own random start phase (the ADC runs free of the laser), summed and
-    rounded, with the phases' rounded mean as the trigger phase. The phases' spread (one
-    sample, 0.3 us at 3.333 MS/s) low-passes the average; a generator that gave every shot
-    one phase would make waveforms sharper than the board's. Returns (uint16 samples,
-    trigger phase in ticks)."""
+    """One waveform as the core averages it (acquire.c): n_average shots of one hit (or of
+    n_average hits, one per shot: a sensor moving while it averages), each sampled from its
+    own random start phase (the ADC runs free of the laser), summed and rounded, with the
+    phases' rounded mean as the trigger phase. The phases' spread (one sample, 0.3 us at
+    3.333 MS/s) low-passes the average; a generator that gave every shot one phase would
+    make waveforms sharper than the board's. Returns (uint16 samples, trigger phase in
+    ticks)."""
     period = int(round(TICK_HZ / fs_hz))
     total = np.zeros(n_samples, np.int64)
     phases = rng.integers(1, period + 1, size=n_average)
-    for phase in phases:
+    hits = hit if isinstance(hit, list) else [hit] * n_average
+    for phase, one in zip(phases, hits, strict=True):
         t_us = (np.arange(n_samples) / fs_hz + int(phase) / TICK_HZ) * 1e6
-        total += to_adc(synthesize(hit, model, t_us, rng, seed), model).astype(np.int64)
+        total += to_adc(synthesize(one, model, t_us, rng, seed), model).astype(np.int64)
     wave = ((total + n_average // 2) // n_average).astype(np.uint16)
     return wave, int((int(phases.sum()) + n_average // 2) // n_average)
 

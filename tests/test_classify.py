@@ -19,6 +19,7 @@ from dmdsm.host.classify.materials import (
 )
 from dmdsm.host.commands.cli import main
 from dmdsm.host.links.stage import StageClient
+from dmdsm.host.scan.catalogue import connect
 from dmdsm.sim.data.dataset import make_database, true_setup
 from dmdsm.sim.physics.objects import bounding_size, household
 from dmdsm.sim.physics.scene import TABLE_I_V, TABLE_I_XR
@@ -69,6 +70,27 @@ def test_pipeline_trains_and_evaluates_end_to_end(db, tmp_path, capsys):
     # with each other, not with the rest
     pair = [sorted(acc["loo"]).index(m) for m in ("apple", "plastic")]
     assert cm[np.ix_(pair, pair)].sum() >= 0.85 * cm[pair].sum()
+
+
+def test_train_takes_several_databases_each_scan_once(db, tmp_path, capsys):
+    """A user who scanned the same objects standing and on fly lines trains on both (the
+    demo's campaign does: its auto scans are fly lines); a database given twice counts
+    once; an empty one is named in one line."""
+    fly = tmp_path / "fly"
+    make_database(fly, points=16, seed=7, objects=["soda_can", "foam_block"], fly_mm=4.0)
+    out = tmp_path / "m.model"
+    rc, text, err = run(capsys, "classify", "train", "--db", str(db), "--db", str(fly),
+                        "--db", str(db), "-o", str(out), "--json")
+    assert rc == 0, err
+    n_db = len(assemble([p for p in (db / "scans").glob("*.h5")]))
+    n_fly = len(assemble(list((fly / "scans").glob("*.h5"))))
+    assert json.loads(text)["points"] == n_db + n_fly
+    empty = tmp_path / "empty"
+    connect(empty, create=True).close()
+    rc, text, err = run(capsys, "classify", "train", "--db", str(db), "--db", str(empty),
+                        "-o", str(tmp_path / "n.model"))
+    assert rc != 0 and f"{empty} has no complete scans" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "n.model").exists()
 
 
 def test_one_modality_sees_only_its_materials_and_prints_the_table(db, tmp_path, capsys):

@@ -22,7 +22,8 @@ from ..scan.scanfile import ScanData, read_scan
 
 MODS = ("oa", "us")
 BOSS_PER_CLASS = 20  # BOSS trains on at most this many windows per class and modality:
-# its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set), 20-40 s per fit here
+# its ensemble search costs ~n^2 (leave-one-out 1-NN per parameter set): 1-2 s per fit
+# here on 64-sample windows, 20-40 s on 128
 WINDOW = 64  # samples per window (19.2 us at 3.333 MS/s): an OA window then ends before the
 # US echo, which follows the OA arrival by t0_US - t0_OA + d/c (2 us + d/c here), beyond d = 5 mm
 PRE = 8       # samples kept before the arrival

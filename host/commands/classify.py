@@ -47,7 +47,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     common.add_argument("--json", action="store_true", help="machine-readable output")
 
     data = argparse.ArgumentParser(add_help=False, parents=[common])  # train, evaluate
-    data.add_argument("--db", type=Path, required=True, help="scan database folder")
+    data.add_argument("--db", type=Path, required=True, action="append",
+                      help="scan database folder (again for more: step and fly scans of "
+                           "the same objects, say)")
     data.add_argument("--modality", choices=list(MODALITY), default="both",
                       help="OA and US fused (default) or one alone")
 
@@ -63,7 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    default=["boss", "minirocket"], help="which ones (default both)")
     e.add_argument("--trials", type=int, default=50, help="random 3:1 splits")
     e.add_argument("--boss-trials", type=int, default=10,
-                   help="random splits for BOSS (about 20 s per fit)")
+                   help="random splits for BOSS (1-2 s per fit at 64 samples)")
     e.add_argument("--no-loo", action="store_true",
                    help="skip the leave-one-object-out protocol")
     e.add_argument("--out", type=Path, default=Path("classify"),
@@ -83,18 +85,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         q.set_defaults(func=cmd_classify)
 
 
-def _db_paths(db: Path | None) -> list[Path]:
+def _db_paths(dbs: list[Path] | None) -> list[Path]:
+    """The complete scans' files of every database given (each once)."""
     from ..scan.catalogue import CatalogueError, list_scans
 
-    if db is None:
+    if not dbs:
         raise ClassifyError("give --db DIR (a scan database)")
-    try:
-        rows = [r for r in list_scans(db) if r["status"] == "complete"]
-    except CatalogueError as e:
-        raise ClassifyError(str(e)) from None
-    if not rows:
-        raise ClassifyError(f"{db} has no complete scans; `dmdsm scan` fills it")
-    return [Path(r["path"]) for r in rows]
+    paths: list[Path] = []
+    for db in dbs:
+        try:
+            rows = [r for r in list_scans(db) if r["status"] == "complete"]
+        except CatalogueError as e:
+            raise ClassifyError(str(e)) from None
+        if not rows:
+            raise ClassifyError(f"{db} has no complete scans; `dmdsm scan` fills it")
+        paths += [Path(r["path"]).resolve() for r in rows]
+    return list(dict.fromkeys(paths))
 
 
 def confusion_table(cm: np.ndarray, classes: np.ndarray) -> str:
@@ -133,7 +139,8 @@ def _train(args: argparse.Namespace) -> int:
     if not args.json:  # one fit, no steps to count: say what runs and for about how long
         print(f"training {args.classifier} on {len(ds)} points of "
               f"{len(np.unique(ds.y))} materials"
-              + (" (a BOSS fit takes about 20 s)" if args.classifier == "boss" else "")
+              + (" (a BOSS fit takes seconds, more on long windows)"
+                 if args.classifier == "boss" else "")
               + "...", file=sys.stderr, flush=True)
     model = fit(ds, args.classifier, modalities=MODALITY[args.modality], lone_pulses=True)
     save_model(model, ds, args.output)

@@ -103,7 +103,7 @@ def _fixed_scans(d: Demo, name: str) -> dict[str, str]:
 
 
 def stage_models(d: Demo) -> Section:
-    """Train the classifier on stage 4's database, run the campaign, judge and show each
+    """Train the classifier on stage 4's databases, run the campaign, judge and show each
     model."""
     from dmdsm.sim.physics.objects import household
 
@@ -112,7 +112,10 @@ def stage_models(d: Demo) -> Section:
 
     sec = Section(TITLES["stage_models"])
     clf = d.out / "materials.npz"
-    d.run("classify", "train", "--db", str(d.out / "db"), "-o", str(clf), "--json")
+    # both of stage 4's databases: the campaign's auto scans are fly lines, whose pulses the
+    # depth change over each waveform's travel smears (docs/classification.md)
+    d.run("classify", "train", "--db", str(d.out / "db"), "--db", str(d.out / "db_fly"),
+          "-o", str(clf), "--json")
     names = CAMPAIGN[:1] if d.quick else CAMPAIGN
     toml = campaign_file(d, names, LEVELS_QUICK if d.quick else LEVELS)
     db = d.out / "db_models"
@@ -176,7 +179,8 @@ def stage_models(d: Demo) -> Section:
         f"`dmdsm campaign {toml}` ({len(names)} object{'s' if len(names) > 1 else ''}, "
         f"one per material, each over {LEVELS_QUICK if d.quick else LEVELS} levels 2 mm "
         f"apart about half its height: the emulator's time), into {db}; the classifier is "
-        f"trained on stage 4's database (`dmdsm classify train`). The errors are of the "
+        f"trained on stage 4's step and fly databases (`dmdsm classify train --db "
+        f"{d.out / 'db'} --db {d.out / 'db_fly'}`). The errors are of the "
         f"model's supported vertices within the scanned band against the emulator's true "
         f"surface; the surface beyond the band is closed but unsupported (grey in the "
         f"views). `dmdsm db list --models --db {db}`, `dmdsm model show OBJECT --db {db} "

@@ -99,13 +99,14 @@ def ranging_offset_std_mm(ranging_json: str, geometric: str = "oa") -> dict[str,
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                    table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
-    (mm^2; `common`: the part shared by neighbours, calibration and table; `repeat`: the
-    travel smear, which every scan of a place repeats), the direction
+    (mm^2; `common`: the part shared by neighbours, calibration and table; `offset`: the
+    part of common that is the modality's ranging offset, shared by its points only;
+    `repeat`: the travel smear, which every scan of a place repeats), the direction
     toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
     pts = scan_points(scan)
     cal = scan.calibration
     offset = ranging_offset_std_mm(scan.ranging_json)
-    keys = ("P", "cov", "common", "repeat", "view", "mod", "index")
+    keys = ("P", "cov", "common", "offset", "repeat", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):
         p = pts[m]
@@ -124,12 +125,15 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
         out["repeat"].append(travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
         out["cov"].append(own + common)
         out["common"].append(common)
-        out["view"].append(_view_dirs(scan, p["theta_deg"]))
+        view = _view_dirs(scan, p["theta_deg"])  # the offset's part of common: along the beam
+        out["offset"].append(offset.get(m, 0.0) ** 2 * np.einsum("ki,kj->kij", view, view))
+        out["view"].append(view)
         out["mod"].append(np.full(len(P), k, np.uint8))
         out["index"].append(np.asarray(p["row"], np.int32))
     if not out["P"]:
         return {"P": np.zeros((0, 3)), "cov": np.zeros((0, 3, 3)),
-                "common": np.zeros((0, 3, 3)), "repeat": np.zeros((0, 3, 3)),
+                "common": np.zeros((0, 3, 3)), "offset": np.zeros((0, 3, 3)),
+                "repeat": np.zeros((0, 3, 3)),
                 "view": np.zeros((0, 3)),
                 "mod": np.zeros(0, np.uint8), "index": np.zeros(0, np.int32)}
     return {k: np.concatenate(v) for k, v in out.items()}
@@ -324,6 +328,7 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
     surf = build_surface(pts["P"][good], pts["cov"][good], pts["view"][good],
                          spacing_mm=spacing_mm, cov_common=pts["common"][good],
                          cov_repeat=pts["repeat"][good], group=pts["scan"][good],
+                         cov_offset=pts["offset"][good], offset_group=pts["mod"][good],
                          spot_mm=np.where(pts["mod"][good] == MODS.index("oa"),
                                           SPOT_RADIUS_MM, 0.0))
     classes: list[str] = []

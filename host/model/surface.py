@@ -324,8 +324,9 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                   min_support: int = 10, *, cov_common: np.ndarray | None = None,
                   cov_repeat: np.ndarray | None = None, group: np.ndarray | None = None,
                   max_voxels: int = 3_000_000, max_neighbours: int = 48,
-                  max_offcentre: float = 1.0, spot_mm: np.ndarray | None = None
-                  ) -> SurfaceModel:
+                  max_offcentre: float = 1.0, spot_mm: np.ndarray | None = None,
+                  cov_offset: np.ndarray | None = None,
+                  offset_group: np.ndarray | None = None) -> SurfaceModel:
     """The closed surface of points P_mm (k, 3) mm with covariances cov (k, 3, 3) mm^2 (all of
     it) and view_dir (k, 3) unit vectors toward the sensor, in the object frame.
 
@@ -348,6 +349,13 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     not average it down by K.
     spot_mm (k,) mm: the laser spot's radius of each point (0 for a US point), for the
     footprint's variance (footprint_var), added like the common part.
+    cov_offset (k, 3, 3) mm^2 and offset_group (k,) int: the part of cov_common that is one
+    group's offset alone (a modality's ranging t0: every US distance alike, independent of
+    the OA ones): fully correlated within a group, independent across groups, so the vertex
+    takes (sum_g sum_{i in g} w_i s_i)^2 / (sum w)^2 of it (s_i: its std along the normal,
+    w: the fit's weights), not the weighted mean of its variance (which overstated a fused
+    OA + US vertex's sigma where the precise OA points carry most of the fit: the tissue
+    box's RMS e/sigma 0.71).
     sigma_mm of a supported vertex: sqrt(fit variance * (robust chi2 if significant, else the
     scatter factor: _scatter_factor, <= 1) + common and footprint variance + bias^2 + the
     repeated part's excess), bias^2 = (chi2_near - 1) * s2 where the points nearest the
@@ -379,6 +387,13 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
     spot = spot[ok]
     repeat_all = None if cov_repeat is None else np.asarray(cov_repeat, float)[ok]
     own = cov - common
+    off_cov = None
+    if cov_offset is not None and offset_group is not None:
+        off_cov, ogrp = np.asarray(cov_offset, float), np.asarray(offset_group)
+        if off_cov.shape != (len(ok), 3, 3) or ogrp.shape != (len(ok),):
+            raise ValueError("cov_offset (k, 3, 3) and offset_group (k,) must match P")
+        off_cov, ogrp = off_cov[ok], ogrp[ok]
+        common = common - off_cov  # counted apart below
     tree = cKDTree(P)
     gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
     R = (neighbourhood_radius(P, target=18, min_mm=1.5, max_mm=6.0)
@@ -421,6 +436,11 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         nn = r["frame_normal"]
         sc = np.einsum("mi,mkij,mj->mk", nn, common[ii], nn)
         var_c = (w * (sc + fp_var[ii])).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
+        if off_cov is not None:
+            so = np.sqrt(np.maximum(np.einsum("mi,mkij,mj->mk", nn, off_cov[ii], nn), 0.0))
+            for gid in np.unique(ogrp):
+                var_c += ((w * so * (ogrp[ii] == gid)).sum(axis=1)
+                          / np.maximum(w.sum(axis=1), 1e-300)) ** 2
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < Rv / 2)
                 & np.isfinite(r["var"]) & (support[sl][sel] >= min_support)
                 & (_facing(r["w0"], vd[ii], r["frame_normal"]) >= MIN_FACING))

@@ -227,6 +227,58 @@ def test_the_objects_material_is_its_supported_vertices_not_every_waveform():
     assert model_verdict(ObjectModel("can", supported=np.ones(3, bool))) is None
 
 
+def test_the_calibrations_modality_decides_which_points_carry_the_ranging_offset(tmp_path):
+    """`dmdsm calibrate --modality us` places the centre points with US distances, so the US
+    ranging's t0 error goes into X_R and the OA points are the ones left with both t0
+    errors: the file says which (a file without it is OA's, the default), a scan keeps it,
+    and the model's offset part follows it."""
+    from dmdsm.host.calibration.result import load_calibration, write_result
+    from dmdsm.host.calibration.solver import CalibrationResult
+    from dmdsm.host.model.build import scan_point_set
+    from dmdsm.host.ranging.calibrate import RangeCal, RangingSetup
+    from dmdsm.host.scan.scanfile import read_scan
+
+    r = CalibrationResult.__new__(CalibrationResult)  # only what write_result reads
+    r.v, r.n, r.X_R = V, N, X_R
+    r.std = {"v": np.full(3, 1e-5), "n": np.full(3, 1e-5), "X_R": np.array([1e-3, 1e-3, 0])}
+    r.angle_std_deg, r.cov = {}, None
+    r.rms_residual_mm = r.tip_depth_scatter_mm = r.edge_depth_scatter_mm = 0.0
+    r.lateral_scale = 1.0
+    (tmp_path / "rig.csv").write_text("x\n")
+    for mod in ("oa", "us"):
+        write_result(r, tmp_path / f"{mod}.toml", str(tmp_path / "rig.csv"), mod)
+        assert load_calibration(tmp_path / f"{mod}.toml")[0]["modality"] == mod
+    bad = tmp_path / "bad.toml"
+    bad.write_text((tmp_path / "us.toml").read_text().replace('modality = "us"',
+                                                               'modality = "laser"'))
+    with pytest.raises(ValueError, match="modality must be"):
+        load_calibration(bad)
+
+    connect(tmp_path, create=True).close()
+    path = cylinder_scan(tmp_path, step_deg=90.0)
+    setup = RangingSetup.from_json(read_scan(path).ranging_json)
+    setup.cals = {m: RangeCal(m, c.t0_s, c.c_mm_s, 1e-7, 0.0, 0.0, 10)  # 0.1 us each
+                  for m, c in setup.cals.items()}
+    with h5py.File(path, "r+") as f:
+        f["/entry/instrument/ranging"].attrs["json"] = setup.to_json()
+    off = {}
+    for mod in ("oa", "us", None):
+        with h5py.File(path, "r+") as f:
+            attrs = f["/entry/instrument/calibration"].attrs
+            if mod is None:
+                attrs.pop("modality", None)
+            else:
+                attrs["modality"] = load_calibration(tmp_path / f"{mod}.toml")[0]["modality"]
+        pts = scan_point_set(read_scan(path))
+        std = np.sqrt(np.trace(pts["offset"], axis1=1, axis2=2))
+        off[mod] = {m: std[pts["mod"] == k] for k, m in enumerate(("oa", "us"))}
+    c = setup.cals["oa"].c_mm_s * 1e-7
+    both = np.hypot(c, c / 2)  # the OA t0 (one way) and the US t0 (round trip) together
+    assert np.allclose(off["oa"]["us"], both) and np.allclose(off["oa"]["oa"], 0.0)
+    assert np.allclose(off["us"]["oa"], both) and np.allclose(off["us"]["us"], 0.0)
+    assert np.allclose(off[None]["us"], both)  # older files: OA calibrated
+
+
 def test_a_changed_scan_makes_the_model_stale_and_a_new_scan_too(tmp_path):
     connect(tmp_path, create=True).close()
     path = cylinder_scan(tmp_path, step_deg=30.0)

@@ -38,6 +38,11 @@ def load_calibration(path: Path) -> tuple[dict, str]:
             raise CalibrationError(f"{path}: cov must be the symmetric 9 x 9 covariance of v, "
                                    f"n, X_R; run `dmdsm calibrate` again")
         out["cov"] = c.tolist()
+    if "modality" in cal:  # absent from files before 2026-12-06 (they were OA's, the default)
+        if cal["modality"] not in ("oa", "us"):
+            raise CalibrationError(f"{path}: modality must be \"oa\" or \"us\" (the distances "
+                                   f"the calibration used), not {cal['modality']!r}")
+        out["modality"] = cal["modality"]
     out["source"] = str(path)
     return out, text
 
@@ -71,8 +76,10 @@ def result_dict(r: CalibrationResult) -> dict:
                           "theta_deg": r.residuals["theta_deg"].tolist()}}
 
 
-def write_result(r: CalibrationResult, path: Path, source: str) -> None:
-    """The calibration TOML that dmdsm commands load ([calibration] section)."""
+def write_result(r: CalibrationResult, path: Path, source: str, modality: str = "oa") -> None:
+    """The calibration TOML that dmdsm commands load ([calibration] section); modality: the
+    one whose distances placed the centre points (its ranging offset went into X_R, so a
+    model's points of that modality do not carry it again: model.build)."""
     def vec(x: np.ndarray) -> str:
         return "[" + ", ".join(f"{float(a):.9g}" for a in x) + "]"
     lines = ["# dmdsm scanner calibration (paper Table I layout)", "[calibration]",
@@ -88,6 +95,7 @@ def write_result(r: CalibrationResult, path: Path, source: str) -> None:
              f"tip_depth_scatter_mm = {r.tip_depth_scatter_mm:.6g}",
              f"edge_depth_scatter_mm = {r.edge_depth_scatter_mm:.6g}",
              f"lateral_scale = {r.lateral_scale:.6g}",
+             f"modality = {json.dumps(modality)}  # the distances the centre points came from",
              f"source = {json.dumps(source)}",
              f"source_sha256 = \"{file_hash(Path(source))}\"",
              f"date = {json.dumps(datetime.datetime.now().isoformat(timespec='seconds'))}",

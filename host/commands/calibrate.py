@@ -192,7 +192,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     out = atomic_output(args.output, keep_previous=True)  # the earlier one is moved aside
     with out as tmp:
-        write_result(r, tmp, str(source))
+        write_result(r, tmp, str(source), args.modality)
     previous = out.previous
     kept = f" (the earlier one is kept as {previous})" if previous else ""
     if args.json:

@@ -83,10 +83,11 @@ def _joint_cov(cal: dict) -> np.ndarray | None:
 def ranging_offset_std_mm(ranging_json: str, geometric: str = "oa") -> dict[str, float]:
     """The std (mm) of the error every distance of a modality shares: its ranging
     calibration's t0 (std times c, halved for the US round trip) less what the geometric
-    calibration absorbed. That one (`dmdsm calibrate`, OA unless told otherwise; the scan
-    file does not say) measured its centre points with the `geometric` modality's distances,
-    so their t0 error is in X_R and cancels from that modality's points; the other
-    modality's points keep both t0 errors. {} if the setup is not readable."""
+    calibration absorbed. That one (`dmdsm calibrate --modality`, recorded in its file and
+    so in the scan's; OA in files from before) measured its centre points with the
+    `geometric` modality's distances, so their t0 error is in X_R and cancels from that
+    modality's points; the other modality's points keep both t0 errors. {} if the setup is
+    not readable."""
     try:
         cals = RangingSetup.from_json(ranging_json).cals
     except (ValueError, KeyError, TypeError):
@@ -105,7 +106,7 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
     toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
     pts = scan_points(scan)
     cal = scan.calibration
-    offset = ranging_offset_std_mm(scan.ranging_json)
+    offset = ranging_offset_std_mm(scan.ranging_json, str(cal.get("modality", "oa")))
     keys = ("P", "cov", "common", "offset", "repeat", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):

@@ -211,12 +211,18 @@ class FusedModel:
         a point without a US window says its material gives no echo; False where the geometry
         explains the silence (the surface turned beyond the echo's cone, which no material
         escapes): that point's pattern term is then the odds of its OA presence alone."""
-        pat = _pattern(ds)
-        like = self.pattern[pat]
-        if us_absence_said is not None:
-            free = ~np.asarray(us_absence_said, bool) & (pat < 2)  # no US window: marginalise
-            like[free] = self.pattern[pat[free]] + self.pattern[pat[free] + 2]
-        logp = np.log(self.prior)[None, :] + np.log(like)
+        return self._posterior(self._windows_logp(ds), _pattern(ds), us_absence_said)
+
+    def predict_proba_silence(self, ds: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """predict_proba with every point's missing US echo taken as its material's, and as
+        the geometry's: both from one pass of the classifiers over the windows."""
+        logp, pat = self._windows_logp(ds), _pattern(ds)
+        return (self._posterior(logp, pat, None),
+                self._posterior(logp, pat, np.zeros(len(pat), bool)))
+
+    def _windows_logp(self, ds: Dataset) -> np.ndarray:
+        """(n, n_classes): sum over modalities of log p_m(c | x_m) / P_m(c)."""
+        logp = np.zeros((len(ds.y), len(self.classes)))
         for m, model in self.models.items():
             idx = np.nonzero(ds.has[m])[0]
             if len(idx):
@@ -224,6 +230,15 @@ class FusedModel:
                 cols = np.searchsorted(self.classes, model.classes_)
                 p[:, cols] = model.predict_proba(ds.X[m][idx][:, None, :])
                 logp[idx] += np.log(np.clip(p, 1e-6, 1)) - np.log(self.mod_prior[m])
+        return logp
+
+    def _posterior(self, logp_windows: np.ndarray, pat: np.ndarray,
+                   us_absence_said: np.ndarray | None) -> np.ndarray:
+        like = self.pattern[pat]
+        if us_absence_said is not None:
+            free = ~np.asarray(us_absence_said, bool) & (pat < 2)  # no US window: marginalise
+            like[free] = self.pattern[pat[free]] + self.pattern[pat[free] + 2]
+        logp = np.log(self.prior)[None, :] + np.log(like) + logp_windows
         logp -= logp.max(axis=1, keepdims=True)
         prob = np.exp(logp)
         return prob / prob.sum(axis=1, keepdims=True)

@@ -160,9 +160,7 @@ def waveform_probabilities(scan: ScanData, classifier: tuple[FusedModel, dict],
     if not len(rows):
         empty = np.zeros((0, len(model.classes)))
         return np.zeros((0, 3)), empty, np.zeros(0, np.int64), empty
-    sub = ds.subset(rows)
-    said = np.asarray(model.predict_proba(sub), float)
-    unsaid = np.asarray(model.predict_proba(sub, np.zeros(len(rows), bool)), float)
+    said, unsaid = model.predict_proba_silence(ds.subset(rows))
     return place[rows], said, rows, unsaid
 
 

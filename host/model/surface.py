@@ -319,6 +319,18 @@ def _wider_radius(x: np.ndarray, Q: np.ndarray, dist: np.ndarray, cov: np.ndarra
     return out, shift2, chosen
 
 
+def _grouped_part(cov: np.ndarray | None, group: np.ndarray | None, ok: np.ndarray,
+                  cov_name: str, group_name: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A covariance part (k, 3, 3) with its group per point (k,), kept where ok; (None, None)
+    unless both are given. Raises ValueError if their shapes do not match the points."""
+    if cov is None or group is None:
+        return None, None
+    c, g = np.asarray(cov, float), np.asarray(group)
+    if c.shape != (len(ok), 3, 3) or g.shape != (len(ok),):
+        raise ValueError(f"{cov_name} (k, 3, 3) and {group_name} (k,) must match P")
+    return c[ok], g[ok]
+
+
 def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
                   spacing_mm: float = 1.0, support_radius_mm: float | None = None,
                   min_support: int = 10, *, cov_common: np.ndarray | None = None,
@@ -375,25 +387,17 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         raise ValueError(f"{int(ok.sum())} finite points: too few for a surface (need 20)")
     P, cov, vd = P[ok], cov[ok], vd[ok]
     common = np.zeros_like(cov) if cov_common is None else np.asarray(cov_common, float)[ok]
-    repeat = None
-    if cov_repeat is not None and group is not None:
-        repeat, grp = np.asarray(cov_repeat, float), np.asarray(group)
-        if repeat.shape != (len(ok), 3, 3) or grp.shape != (len(ok),):
-            raise ValueError("cov_repeat (k, 3, 3) and group (k,) must match P")
-        repeat, grp = repeat[ok], grp[ok]
+    repeat, grp = _grouped_part(cov_repeat, group, ok, "cov_repeat", "group")
     spot = np.zeros(len(ok)) if spot_mm is None else np.asarray(spot_mm, float)
     if spot.shape != (len(ok),):
         raise ValueError("spot_mm (k,) must match P")
     spot = spot[ok]
     repeat_all = None if cov_repeat is None else np.asarray(cov_repeat, float)[ok]
     own = cov - common
-    off_cov = None
-    if cov_offset is not None and offset_group is not None:
-        off_cov, ogrp = np.asarray(cov_offset, float), np.asarray(offset_group)
-        if off_cov.shape != (len(ok), 3, 3) or ogrp.shape != (len(ok),):
-            raise ValueError("cov_offset (k, 3, 3) and offset_group (k,) must match P")
-        off_cov, ogrp = off_cov[ok], ogrp[ok]
+    off_cov, ogrp = _grouped_part(cov_offset, offset_group, ok, "cov_offset", "offset_group")
+    if off_cov is not None:
         common = common - off_cov  # counted apart below
+        offset_ids = np.unique(ogrp)
     tree = cKDTree(P)
     gap = float(np.median(tree.query(P, k=2, workers=-1)[0][:, 1]))
     R = (neighbourhood_radius(P, target=18, min_mm=1.5, max_mm=6.0)
@@ -438,7 +442,7 @@ def build_surface(P_mm: np.ndarray, cov: np.ndarray, view_dir: np.ndarray,
         var_c = (w * (sc + fp_var[ii])).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)
         if off_cov is not None:
             so = np.sqrt(np.maximum(np.einsum("mi,mkij,mj->mk", nn, off_cov[ii], nn), 0.0))
-            for gid in np.unique(ogrp):
+            for gid in offset_ids:
                 var_c += ((w * so * (ogrp[ii] == gid)).sum(axis=1)
                           / np.maximum(w.sum(axis=1), 1e-300)) ** 2
         good = ((r["centred"] <= max_offcentre) & (np.abs(r["offset"]) < Rv / 2)

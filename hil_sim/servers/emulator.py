@@ -11,6 +11,8 @@ served and shut down is written once:
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 import threading
 
 from .pty_server import PtyServer
@@ -27,6 +29,12 @@ class Emulator:
         self.sim = sim if sim is not None else Simulation(cfg)
         if boot_s > 0:  # let a firmware boot first: bytes sent before its UART is up are lost
             self.sim.advance(boot_s)
+        self._own_links: str | None = None
+        if link_dir is None and any(self.sim.channels[(name, "up")].f.disconnect
+                                    for name in ("sensor", "stage")):
+            # a port that is pulled comes back as another /dev/pts/N: give it a stable name,
+            # as udev's by-id link does for a real board, so the host can find it again
+            link_dir = self._own_links = tempfile.mkdtemp(prefix="dmdsm-ports-")
         self.server = PtyServer(self.sim, speed=speed, link_dir=link_dir)
         self.thread: threading.Thread | None = None
         self._closed = False
@@ -57,6 +65,7 @@ class Emulator:
         finally:
             self._closed = True
             self.sim.close()
+            self._remove_own_links()
 
     def stop(self) -> None:
         """Stop serving, wait for the thread and close the simulation (a stage firmware's
@@ -68,6 +77,13 @@ class Emulator:
         if not self._closed:
             self._closed = True
             self.sim.close()
+        self._remove_own_links()
+
+    def _remove_own_links(self) -> None:
+        """Remove the link directory made for pulled ports (none given by the caller)."""
+        if self._own_links is not None:
+            shutil.rmtree(self._own_links, ignore_errors=True)
+            self._own_links = None
 
     def __enter__(self) -> Emulator:
         return self.start()

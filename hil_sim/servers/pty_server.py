@@ -44,7 +44,12 @@ class Port:
             tmp.replace(self.link)
 
     def close(self) -> None:
-        """Close both ends: an open host connection sees the port vanish."""
+        """Close both ends: an open host connection sees the port vanish, and so does its
+        stable name (as a udev /dev/serial/by-id link does on unplugging): the kernel gives
+        the freed /dev/pts/N to the next pty opened anywhere, so a host reopening the old
+        path meanwhile would open (and take bytes from) another program's port."""
+        if self.link is not None:
+            self.link.unlink(missing_ok=True)
         for fd in (self.master, self.slave):
             try:
                 os.close(fd)

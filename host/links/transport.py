@@ -16,10 +16,12 @@ class LinkError(Exception):
 def open_port(name: str, baudrate: int, timeout: float = 0.05) -> serial.SerialBase:
     """Open a device path (/dev/ttyACM0, /dev/pts/3), a by-id link or a pySerial URL
     (socket://host:port, loop://) exclusively."""
-    if "://" not in name and not os.path.exists(name):
+    try:
+        mode = None if "://" in name else os.stat(name).st_mode
+    except OSError:  # missing, or gone between two looks (a board re-enumerating)
         raise LinkError(f"{name} does not exist: check the cable, or list ports with "
-                        f"`dmdsm ports`")
-    if "://" not in name and not stat.S_ISCHR(os.stat(name).st_mode):
+                        f"`dmdsm ports`") from None
+    if mode is not None and not stat.S_ISCHR(mode):
         kind = "a folder" if os.path.isdir(name) else "a plain file"
         raise LinkError(f"{name} is {kind}, not a serial port: give the board's port "
                         f"(e.g. /dev/ttyACM0; `dmdsm ports` lists them)")

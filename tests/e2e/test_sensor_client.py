@@ -74,6 +74,37 @@ def test_disconnect_mid_stream_is_reported_and_recovered(emulator):
     sc.close()
 
 
+def test_a_pulled_port_keeps_its_name_and_never_names_another_programs_port(emulator):
+    """A board that drops comes back as another /dev/pts/N (the kernel gives the freed number
+    to the next pty opened anywhere): the emulator names it by a stable link, as udev's
+    by-id link names a real board, and the link is gone while the board is. A host that
+    reopened the bare old path once took another test's Marlin port and its bytes."""
+    import os
+    import time
+
+    emu = emulator(speed=1.0, faults="sensor.disconnect=2,sensor.reconnect_s=3", seed=4)
+    name = emu.sensor
+    assert not name.startswith("/dev/pts/") and os.path.realpath(name).startswith("/dev/pts/")
+    end = time.monotonic() + 60
+    while os.path.lexists(name):  # the first pull comes within about 0.5 s of the board's time
+        assert time.monotonic() < end, "the port was never pulled"
+        time.sleep(0.01)
+    master, slave = os.openpty()  # another program's pty: it may get the freed number
+    try:
+        with pytest.raises(LinkError, match="does not exist"):
+            SensorClient(name)
+        while not os.path.lexists(name):
+            assert time.monotonic() < end, "the port never came back"
+            time.sleep(0.01)
+        assert os.path.realpath(name) != os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+    own = os.path.dirname(name)
+    emu.stop()
+    assert not os.path.exists(own)  # the emulator's own link folder goes with it
+
+
 def test_clock_sync_recovers_the_tick_rate(emulator):
     sc = SensorClient(emulator(speed=1.0).sensor)
     cs = sc.sync_clock(16)

@@ -98,15 +98,21 @@ def ranging_offset_std_mm(ranging_json: str, geometric: str = "oa") -> dict[str,
 
 
 def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
-                   table_std_deg: float = TABLE_STD_DEG) -> dict[str, np.ndarray]:
+                   table_std_deg: float = TABLE_STD_DEG, calibration_part: bool = True
+                   ) -> dict[str, np.ndarray]:
     """One scan's points of both modalities (object frame, mm) with their 3x3 covariances
     (mm^2; `common`: the part shared by neighbours, calibration and table; `offset`: the
     part of common that is the modality's ranging offset, shared by its points only;
     `repeat`: the travel smear, which every scan of a place repeats), the direction
-    toward the sensor, modality (0 OA, 1 US) and row in the file (`index`)."""
+    toward the sensor, modality (0 OA, 1 US) and row in the file (`index`).
+    calibration_part=False leaves out what the calibrations' errors add (v, n, X_R and the
+    ranging offsets: one draw shared by a whole run, which one run cannot check)."""
     pts = scan_points(scan)
     cal = scan.calibration
-    offset = ranging_offset_std_mm(scan.ranging_json, str(cal.get("modality", "oa")))
+    offset = ranging_offset_std_mm(scan.ranging_json, str(cal.get("modality", "oa"))) \
+        if calibration_part else {}
+    cal_std = {k: _std(cal, k) if calibration_part else np.zeros(3)
+               for k in ("v_std", "n_std", "X_R_std")}
     keys = ("P", "cov", "common", "offset", "repeat", "view", "mod", "index")
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for k, m in enumerate(MODS):
@@ -119,9 +125,10 @@ def scan_point_set(scan: ScanData, stage_std_mm: float = STAGE_STD_MM,
                              f"stds: rescan with this dmdsm, or range it again")
         P, own, common = covariance_parts(
             p["S"], p["d"], d_std, p["theta_deg"], cal["v"], cal["n"], cal["X_R"],
-            _std(cal, "v_std"), _std(cal, "n_std"), _std(cal, "X_R_std"),
+            cal_std["v_std"], cal_std["n_std"], cal_std["X_R_std"],
             stage_std_mm=stage_std_mm, table_std_deg=table_std_deg, travel_mm=p["travel"],
-            cal_cov=_joint_cov(cal), offset_std_mm=offset.get(m, 0.0))
+            cal_cov=_joint_cov(cal) if calibration_part else None,
+            offset_std_mm=offset.get(m, 0.0))
         out["P"].append(P)
         out["repeat"].append(travel_covariance(p["theta_deg"], cal["n"], p["travel"]))
         out["cov"].append(own + common)
@@ -266,11 +273,14 @@ def model_verdict(model: ObjectModel) -> dict | None:
 
 def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None = None,
                        spacing_mm: float = 1.0, modalities: tuple[str, ...] = MODS,
-                       progress: Progress | None = None) -> ObjectModel:
+                       progress: Progress | None = None, calibration_part: bool = True
+                       ) -> ObjectModel:
     """The model of one object from its scans in db_dir (not written yet: store.write_model).
     classifier: a `dmdsm classify train` model file giving the vertices' materials (none:
     the model carries no materials); modalities: the points' modalities the surface is built
-    from (the bench builds one per modality). Raises ModelError with one line on what to do."""
+    from (the bench builds one per modality); calibration_part=False: sigma without the
+    calibrations' part (scan_point_set; the demo's check of the rest against one run's
+    truth). Raises ModelError with one line on what to do."""
     say = progress or (lambda _s: None)
     check_object_id(object_id)
     rows, left = object_scans(Path(db_dir), object_id)
@@ -292,7 +302,7 @@ def build_object_model(db_dir: Path, object_id: str, *, classifier: Path | None 
             scan = read_scan(Path(row["path"]), waveforms=clf is not None)
         except ScanFileError as e:
             raise ModelError(f"scan {row['scan_id']}: {e}") from None
-        one = scan_point_set(scan)
+        one = scan_point_set(scan, calibration_part=calibration_part)
         one["scan"] = np.full(len(one["P"]), k, np.int32)
         parts.append(one)
         if clf is not None:

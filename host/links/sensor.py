@@ -139,6 +139,8 @@ class SensorClient:
         self.seq = random.randrange(0x10000)
         self.cond = threading.Condition()
         self.responses: dict[int, Message] = {}
+        self.arrived_ns: dict[int, int] = {}  # seq -> host monotonic ns its bytes were read
+        self._chunk_ns = 0  # when the reader took in the bytes it is decoding (ns)
         self.logs: list[Message] = []
         self.decoder = FrameDecoder()
         self.link_error: str | None = None
@@ -266,6 +268,7 @@ class SensorClient:
                 return
             if not data:
                 continue
+            self._chunk_ns = time.monotonic_ns()
             s = self.shots
             if s is not None and s.armed_s is not None and s.first_byte_s is None:
                 s.first_byte_s = time.monotonic()
@@ -301,16 +304,19 @@ class SensorClient:
         with self.cond:
             if m.is_response:
                 self.responses[m.seq] = m
+                self.arrived_ns[m.seq] = self._chunk_ns
             elif m.name == "log":
                 self.logs.append(m)
             self.cond.notify_all()
 
     # ------------------------------------------------------------------ commands
     def request(self, name: str, sent_ns: list[int] | None = None,
-                written_ns: list[int] | None = None, **fields: object) -> Message:
+                written_ns: list[int] | None = None, received_ns: list[int] | None = None,
+                **fields: object) -> Message:
         """Send a command and return its response; retried with the same seq on timeout.
         sent_ns / written_ns: the host monotonic ns just before / after each write of it are
-        appended there."""
+        appended there; received_ns: the ns at which the reader took in the reply's bytes
+        (before this thread woke to it)."""
         if self.link_error:
             raise SensorError(f"lost the sensor board on {self.port_name} ({self.link_error}): "
                               f"check its USB cable, then run the command again")
@@ -332,6 +338,9 @@ class SensorClient:
                         break
                     self.cond.wait(left)
                 if seq in self.responses:
+                    arrived = self.arrived_ns.pop(seq, 0)
+                    if received_ns is not None:
+                        received_ns.append(arrived or time.monotonic_ns())
                     return self.responses.pop(seq)
                 if self.link_error:
                     raise SensorError(f"lost the sensor board on {self.port_name} "
@@ -512,13 +521,15 @@ class SensorClient:
     def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0
                         ) -> list[tuple[float, float, float]]:
         """n clock_sync exchanges, started at least spacing_s apart: (host monotonic mid-time
-        s, device ticks, round trip s), the round trip from the request's write (not from
-        before its encoding, nor a wait for another thread). A rate needs a baseline: 16
-        back-to-back exchanges span 10 ms, where 1 ms of USB jitter is a 10 % error. One
-        that had to be sent again is left out (the board may have answered the first), and
-        one whose write came more than HELD_WRITE_S after its send stamp (this thread held
-        off the interpreter between the two: up to 8 ms under a live stream's load) is made
-        again, as many again as n at most; the last attempt is kept as it is."""
+        s, device ticks, round trip s), the round trip from the request's write to the reader
+        taking in the reply's bytes (not from before its encoding, nor to this thread's wake-up
+        after the reader: that leg is the host's alone and only on the way back). A rate
+        needs a baseline: 16 back-to-back exchanges span 10 ms, where 1 ms of USB jitter is a
+        10 % error. One that had to be sent again is left out (the board may have answered
+        the first), and one whose write came more than HELD_WRITE_S after its send stamp
+        (this thread held off the interpreter between the two: up to 8 ms under a live
+        stream's load) is made again, as many again as n at most; the last attempt is kept
+        as it is."""
         out: list[tuple[float, float, float]] = []
         for attempt in range(2 * n):
             if len(out) == n:
@@ -527,9 +538,10 @@ class SensorClient:
                 time.sleep(max(0.0, out[-1][0] + spacing_s - time.monotonic()))
             sent: list[int] = []
             written: list[int] = []
+            received: list[int] = []
             r = self.request("clock_sync", sent_ns=sent, written_ns=written,
-                             host_time_ns=time.monotonic_ns())
-            t1 = time.monotonic_ns()
+                             received_ns=received, host_time_ns=time.monotonic_ns())
+            t1 = received[0]  # the reply's bytes read, not this thread's wake-up after
             held = (written[-1] - sent[-1]) / 1e9 > HELD_WRITE_S
             if len(sent) == 1 and not (held and attempt < 2 * n - 1):
                 out.append(((sent[0] + t1) / 2e9, float(r.device_ticks), (t1 - sent[0]) / 1e9))

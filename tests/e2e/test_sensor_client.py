@@ -117,6 +117,31 @@ def test_clock_sync_recovers_the_tick_rate(emulator):
     sc.close()
 
 
+def test_a_clock_exchanges_round_trip_ends_when_the_reply_is_read(emulator):
+    """The reply's leg ends when the reader takes in its bytes, not when the asking thread
+    wakes to it (held off the interpreter for ms under a live stream's load): that delay is
+    the host's alone and only on the way back, so it widened the round trip and moved the
+    mid-time off the board's reading. Here the asking thread wakes 30 ms late every time."""
+    import time
+
+    sc = SensorClient(emulator(speed=1.0).sensor)
+    wait = sc.cond.wait
+
+    def late_wake(timeout=None):
+        woke = wait(timeout)
+        time.sleep(0.03)
+        return woke
+
+    sc.cond.wait = late_wake
+    t0 = time.monotonic()
+    ex = sc.clock_exchanges(5)
+    took = time.monotonic() - t0
+    sc.cond.wait = wait
+    assert took > 5 * 0.03 and len(ex) == 5
+    assert max(rtt for _, _, rtt in ex) < 0.02, ex
+    sc.close()
+
+
 def test_a_clock_exchange_whose_write_was_held_is_made_again(emulator, monkeypatch):
     """Under a live stream's load the thread that stamps a clock_sync's send can be held off
     the interpreter for ms before the bytes go out; the board then reads its clock that

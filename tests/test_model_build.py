@@ -50,7 +50,8 @@ def cylinder_scan(db, scan_id="can-a", seed=0, step_deg=10.0, levels_mm=None, fl
     rng = np.random.default_rng(seed)
     path = db / "scans" / f"{scan_id}.h5"
     cal = {"v": V.tolist(), "n": N.tolist(), "X_R": X_R.tolist(),
-           "v_std": [1e-5, 1e-6, 1e-5], "n_std": [1e-5, 1e-5, 1e-6], "X_R_std": [x_r_std_mm, x_r_std_mm, 0.0]}
+           "v_std": [1e-5, 1e-6, 1e-5], "n_std": [1e-5, 1e-5, 1e-6],
+           "X_R_std": [x_r_std_mm, x_r_std_mm, 0.0]}
     w = ScanWriter.create(path, scan_id=scan_id, plan_text="", plan_hash="h", n_samples=8,
                           sensor={"board": "test"}, calibration=cal, calibration_toml="",
                           ranging_json=setup.to_json(),

@@ -119,26 +119,25 @@ def test_clock_sync_recovers_the_tick_rate(emulator):
 
 def test_a_clock_exchanges_round_trip_ends_when_the_reply_is_read(emulator):
     """The reply's leg ends when the reader takes in its bytes, not when the asking thread
-    wakes to it (held off the interpreter for ms under a live stream's load): that delay is
+    gets to it (held off the interpreter for ms under a live stream's load): that delay is
     the host's alone and only on the way back, so it widened the round trip and moved the
-    mid-time off the board's reading. Here the asking thread wakes 30 ms late every time."""
+    mid-time off the board's reading. Here the asking thread takes every reply 30 ms late."""
     import time
 
+    class LateTake(dict):
+        def pop(self, *args):
+            time.sleep(0.03)
+            return super().pop(*args)
+
     sc = SensorClient(emulator(speed=1.0).sensor)
-    wait = sc.cond.wait
-
-    def late_wake(timeout=None):
-        woke = wait(timeout)
-        time.sleep(0.03)
-        return woke
-
-    sc.cond.wait = late_wake
+    sc.responses = LateTake(sc.responses)
     t0 = time.monotonic()
     ex = sc.clock_exchanges(5)
     took = time.monotonic() - t0
-    sc.cond.wait = wait
+    sc.responses = dict(sc.responses)
     assert took > 5 * 0.03 and len(ex) == 5
-    assert max(rtt for _, _, rtt in ex) < 0.02, ex
+    # every one was >= 30 ms before; a loaded machine may hold one reply's read itself
+    assert np.median([rtt for _, _, rtt in ex]) < 0.02, ex
     sc.close()
 
 

@@ -204,9 +204,12 @@ def stage_models(d: Demo) -> Section:
         f"views). RMS e/sigma holds within 0.8-1.25 when the sigma are right; every vertex of "
         f"every model of a run shares one calibration error, one draw of what its stated "
         f"std allows (checked over many runs: `python bench/calibration.py --seeds 40`, `python "
-        f"bench/uncertainty.py`), so the "
-        f"column beside it judges the rest: the same scans' models built with the "
-        f"calibrations' part of sigma left out. `dmdsm db list --models --db {db}`, "
+        f"bench/uncertainty.py`). The column beside it is the same scans' models built "
+        f"with the calibrations' part of sigma left out: the first counts all of what the "
+        f"calibration may be off, the second none of it, and this run's error holds one draw "
+        f"of it, so the sigma are right when the two bracket 1 (a run whose calibration is "
+        f"close shows the first below 0.8, one whose calibration is further off the second "
+        f"above 1.25). `dmdsm db list --models --db {db}`, "
         f"`dmdsm model show OBJECT --db {db} "
         f"--html FILE`, `dmdsm model export OBJECT --db {db} -o FILE.glb`.")
     return sec

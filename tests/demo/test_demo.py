@@ -63,9 +63,10 @@ def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
     for name, m in models.items():
         assert m["campaign"]["status"] == "scanned", (name, m["campaign"])
         assert m["truth"]["vertices"] > 0, (name, m["truth"])
-        # the model's own sigma against the truth (the calibration's shared draw apart):
-        # 0.93-1.11 on the seven in the full demo of 2026-12-06; a gross break shows here
-        assert 0.6 < m["truth"]["z_rms_own"] < 1.6, (name, m["truth"])
+        # the sigma with all of the calibration's part and with none of it bracket the
+        # error (two full demos of 2026-12-06: as built 0.60-1.04, apart 0.93-1.34)
+        assert m["truth"]["z_rms"] < 1.4 and 0.7 < m["truth"]["z_rms_own"] < 1.6, \
+            (name, m["truth"])
         auto, fixed = m["coverage_truth"]["auto"], m["coverage_truth"].get("step", {})
         assert max(auto.values()) > max(fixed.values(), default=0), (name, m["coverage_truth"])
     assert r.returncode == 0 and all(s["ok"] for s in st.values()), r.stdout[-2000:]

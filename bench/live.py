@@ -11,7 +11,7 @@ Each: records/s, lost (shot-id gaps + the board's loss counters), latency p50/p9
 laser edge (the emulator's truth) to the record leaving the generator and to its last
 message (/dmdsm/distance/us, after the waveform, the ranges and the OA distance) arriving
 at a foxglove.websocket.v1 client in its own process (as Foxglove is), beyond the frame's
-own time on the wire (at most 2106 bytes at 200 kB/s: `waveform_wire_bytes`), and from
+own time on the wire (at most 2110 bytes at 200 kB/s: `waveform_wire_bytes`), and from
 the frame's last byte leaving the board (p50, p99 after the first second of the stream,
 and that second's worst: the emulator's start-up); CPU per record (this process: reader,
 ranging, encoding, server; not the client's); the host stamps against the truth (RMS z of

@@ -24,7 +24,7 @@ def waveform(i: int, samples: np.ndarray) -> Message:
     return Message("waveform", seq=i & 0xFFFF, shot_id=i, timestamp=i * 2_400_000,
                    trigger_phase=i % 72, n_average=16, pretrigger=64, sample_rate_div=1,
                    sample_format=0, modality=0, triggers_skipped=0, adc_overruns=0,
-                   integrity_faults=0, sync_steps=0, samples=samples)
+                   integrity_faults=0, sync_steps=0, sync_steps_a=0, samples=samples)
 
 
 def best_of(n: int, fn) -> float:

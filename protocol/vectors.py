@@ -46,7 +46,7 @@ def _messages() -> list[tuple[str, Message]]:
                modality=0, sample_format=0, trigger_timeout_ms=1000)
     wf = dict(shot_id=7, timestamp=480_000_123, trigger_phase=37, n_average=16, pretrigger=8,
               sample_rate_div=1, modality=1, triggers_skipped=2, adc_overruns=0, integrity_faults=3,
-              sync_steps=40_321)
+              sync_steps=40_321, sync_steps_a=1_234)
     return [
         ("ping", Message("ping", seq=1, nonce=0xDEADBEEF)),
         ("pong", Message("pong", seq=1, flags=1, nonce=0xDEADBEEF)),
@@ -84,7 +84,9 @@ def _messages() -> list[tuple[str, Message]]:
                                          samples=np.full(300, 0x0101, "<u2"), **wf)),
         ("log", Message("log", seq=0, level=2, code=7, text="no trigger within 1000 ms")),
         ("motion_sync", Message("motion_sync", seq=1, burst_id=3, first_edge=0x1_2345_6789,
-                                last_edge=0x1_2C0D_4BA9, edges=5120)),
+                                last_edge=0x1_2C0D_4BA9, edges=5120, input=0)),
+        ("motion_sync_a", Message("motion_sync", seq=2, burst_id=4, first_edge=0x1_3000_0000,
+                                  last_edge=0x1_3A00_0000, edges=3200, input=1)),
     ]
 
 

@@ -56,7 +56,7 @@ class FakeSensor:
         self.motion_syncs.append(SimpleNamespace(
             burst_id=len(self.motion_syncs), first_edge=self.ticks(start),
             last_edge=self.ticks(start + self.motion.last_step_s),
-            edges=self.motion.n + self.edges_off))
+            edges=self.motion.n + self.edges_off, input=0))
         times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
         waves = [SimpleNamespace(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
                                  trigger_phase=7, samples=np.zeros(64, np.uint16),

@@ -96,7 +96,7 @@ class BurstBoard(FakeSensor):
                 bursts.append((first, last, n))
         now = time.monotonic()
         return [SimpleNamespace(burst_id=i, first_edge=self.ticks(f), last_edge=self.ticks(la),
-                                edges=n) for i, (f, la, n) in enumerate(bursts)
+                                edges=n, input=0) for i, (f, la, n) in enumerate(bursts)
                 if la + QUIET_S <= now]
 
     @motion_syncs.setter

@@ -13,7 +13,7 @@ def _frame(samples: np.ndarray, fmt: int) -> bytes:
     return encode_frame(Message("waveform", shot_id=7, timestamp=1 << 40, trigger_phase=3,
                                 n_average=2, pretrigger=0, sample_rate_div=1, sample_format=fmt,
                                 modality=0, triggers_skipped=0, adc_overruns=0,
-                                integrity_faults=0, sync_steps=0, samples=samples))
+                                integrity_faults=0, sync_steps=0, sync_steps_a=0, samples=samples))
 
 
 @given(st.integers(16, 8192), st.sampled_from([0, 1]), st.integers(0, 2**32 - 1))
@@ -41,5 +41,5 @@ def test_rate_is_the_slower_of_link_and_laser(n, average):
 
 def test_the_defaults_of_a_fresh_board():
     r = link_rate(1024, 1)
-    assert r.wire_bytes == 2106 and round(r.link_hz) == 95 and r.limit == "link"
+    assert r.wire_bytes == 2110 and round(r.link_hz) == 95 and r.limit == "link"
     assert r.free_average == 10 and "91% of laser shots are skipped (not a loss)" in r.text()

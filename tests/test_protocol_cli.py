@@ -44,7 +44,8 @@ def _capture(tmp_path: Path) -> tuple[Path, list[Message]]:
     msgs = [Message("ping", seq=1, nonce=5),
             Message("waveform", seq=0, shot_id=0, timestamp=10, trigger_phase=3, n_average=2,
                     pretrigger=4, sample_rate_div=1, sample_format=0, modality=1,
-                    triggers_skipped=0, adc_overruns=0, integrity_faults=0, sync_steps=0,
+                    triggers_skipped=0, adc_overruns=0, integrity_faults=0,
+                    sync_steps=0, sync_steps_a=0,
                     samples=np.arange(100, dtype="<u2")),
             Message("nak", seq=1, flags=1, command=4, error=3, detail=1)]
     data = bytearray(b"".join(encode_frame(m) for m in msgs))
@@ -72,7 +73,8 @@ def test_decode_json_then_encode_reproduces_the_frames(tmp_path):
                     trigger_timeout_ms=0),
             Message("waveform", seq=3, shot_id=3, timestamp=2**40, trigger_phase=1,
                     n_average=4, pretrigger=8, sample_rate_div=2, sample_format=1, modality=1,
-                    triggers_skipped=1, adc_overruns=0, integrity_faults=0, sync_steps=0,
+                    triggers_skipped=1, adc_overruns=0, integrity_faults=0,
+                    sync_steps=0, sync_steps_a=0,
                     samples=np.arange(50, dtype="<u4") * 999)]
     data = b"".join(encode_frame(m) for m in msgs)
     r = dmdsm("protocol", "decode", "--json", "-", stdin=data)

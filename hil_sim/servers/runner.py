@@ -51,8 +51,9 @@ class SimConfig:
     # "" runs the Marlin emulator; an AVR ELF path runs that stage firmware (Marlin built from
     # firmware/marlin_patch) under simavr in lock-step (hil_sim/boards/stage/avr_lockstep.py)
     stage_firmware: str = ""
-    # the motion-sync wire from the stage's X STEP line to the sensor board (docs/firmware.md)
-    sync_wire: bool = True
+    # the motion-sync wires from the stage's X and A STEP lines to the sensor board
+    # (docs/firmware.md): "xa" both, "x" the X line only, "" none
+    sync_wire: str = "xa"
 
 
 class Simulation:
@@ -85,7 +86,11 @@ class Simulation:
         else:
             self.stage = MarlinEmulator(self.limits, seed=cfg.seed, faults=stage_faults)
         self.sensor: SensorBoardInterface  # SensorBoard or RehostedSensor
-        sync = self.x_step_edges if cfg.sync_wire else None  # the X STEP wire, if plugged
+        if not set(cfg.sync_wire) <= set("xa"):
+            raise ValueError(f"sync_wire must name the STEP lines wired: 'xa', 'x', 'a' or '' "
+                             f"(got {cfg.sync_wire!r})")
+        sync = [self.x_step_edges if "x" in cfg.sync_wire else None,  # the STEP wires plugged
+                self.a_step_edges if "a" in cfg.sync_wire else None]
         if cfg.sensor_firmware:
             from ..boards.sensor.rehost.board import RehostedSensor  # unicorn only when asked
             self.sensor = RehostedSensor(self.scene, self.pose, self.model, seed=cfg.seed,
@@ -122,6 +127,11 @@ class Simulation:
         """Times (s) of the X stepper's STEP pulses in (t_from, t_to]: the motion-sync wire
         from the stage board's X STEP line to the sensor board (docs/firmware.md)."""
         return self.stage.step_edges(self.limits.axis("X"), t_from, t_to)
+
+    def a_step_edges(self, t_from: float, t_to: float) -> np.ndarray:
+        """Times (s) of the turntable stepper's STEP pulses in (t_from, t_to]: the second
+        motion-sync wire (docs/firmware.md)."""
+        return self.stage.step_edges(self.limits.axis("A"), t_from, t_to)
 
     def truth(self) -> dict:
         """What the host must estimate: v, n, X_R, c, t0s, the current pose and distance."""

@@ -90,7 +90,8 @@ class StreamSensor(Protocol):
 
     @property
     def motion_syncs(self) -> Iterable[Message]:
-        """The stage's X STEP burst reports (burst_id, first/last_edge ticks, edges), latest."""
+        """The stage's X and A STEP burst reports (burst_id, first/last_edge ticks, edges,
+        input), latest."""
 
     def clock_exchanges(self, n: int = 16, spacing_s: float = 0.0
                         ) -> list[tuple[float, float, float]]:

@@ -125,7 +125,7 @@ class SensorClient:
 
     port_name: str                   # the port name or URL given
     identity: Message | None         # the handshake reply (None only while it is made)
-    motion_syncs: deque[Message]     # the stage's X STEP burst reports, the last 256
+    motion_syncs: deque[Message]     # the stage's X and A STEP burst reports, the last 256
 
     def __init__(self, port: str, baudrate: int = 2_000_000, timeout_s: float = 0.5,
                  retries: int = 4, expected_hash: int = SPEC.hash) -> None:
@@ -151,7 +151,7 @@ class SensorClient:
         self._config: dict | None = None
         self._counters: dict | None = None
         # continuous acquisition (stream_start/stream_stop): waveform messages in arrival
-        # order; motion_sync reports (the stage's X STEP bursts) as they come, the last 256
+        # order; motion_sync reports (the stage's X and A STEP bursts) as they come, the last 256
         self.stream: list[Message] | None = None
         self._stream_before: dict = {}  # device counters when the stream was armed
         self.motion_syncs: deque[Message] = deque(maxlen=256)

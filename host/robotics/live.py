@@ -194,7 +194,7 @@ def clock_fit(before: list[tuple[float, float, float]] | np.ndarray,
               ) -> ClockFit:
     """Fit (host mid s, ticks, round trip s) exchanges by the request's send time: the
     board stamps a clock_sync when the request arrives, but its reply waits behind the
-    waveform frame on the wire (up to 10.4 ms at the link limit), so the send time plus
+    waveform frame on the wire (up to 10.6 ms at the link limit), so the send time plus
     half the idle round trip (`before`: made before the arm) is the arrival whatever the
     reply's wait. `during`: made while the stream runs; once MIN_FIT_EXCHANGES of them are
     there the line goes through those alone (the board's regime), else through all."""

@@ -42,6 +42,8 @@ from .fly import (
 from .plan import Point, ScanPlan
 from .scanfile import PHASES, ScanWriter
 
+SYNC_X = SPEC.enums["sync_input"]["x"]  # the X STEP line's motion-sync input
+
 RETRIES = 3          # measurements of one line before the scan stops
 SYNC_WAIT_S = 1.0    # after M400, how long the X burst's report may take
 LASER_TOLERANCE = 0.02  # measured laser rate vs the plan's laser_hz
@@ -378,8 +380,8 @@ class FlyRun:
         def line_bursts() -> list:
             """The bursts reported since the arm that began after it (the line's own: a
             burst of the stage's earlier moves began before it, whatever its count)."""
-            return [m for m in list(sensor.motion_syncs)
-                    if m.burst_id not in bursts_before and m.first_edge > before[0][1]]
+            return [m for m in list(sensor.motion_syncs) if m.input == SYNC_X
+                    and m.burst_id not in bursts_before and m.first_edge > before[0][1]]
 
         sensor.stream_start()
         try:

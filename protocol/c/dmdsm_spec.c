@@ -62,9 +62,9 @@ static const struct dmdsm_msg_info infos[] = {
     {0x88, 0, 0, 16, 0x00, "clock_sync_reply"},
     {0xf0, 0, 0, 1, 0x00, "ack"},
     {0xf1, 0, 0, 4, 0x00, "nak"},
-    {0xa0, 0, 3, 38, 0x00, "waveform"},
+    {0xa0, 0, 3, 42, 0x00, "waveform"},
     {0xa1, 0, 2, 2, 0x00, "log"},
-    {0xa2, 0, 0, 24, 0x00, "motion_sync"},
+    {0xa2, 0, 0, 25, 0x00, "motion_sync"},
 };
 
 const struct dmdsm_msg_info *dmdsm_msg_info(uint8_t type)
@@ -416,9 +416,10 @@ size_t dmdsm_pack_waveform(const struct dmdsm_waveform *m, uint8_t *out)
     put_le(out + 26, (uint64_t)(uint32_t)m->adc_overruns, 4);
     put_le(out + 30, (uint64_t)(uint32_t)m->integrity_faults, 4);
     put_le(out + 34, (uint64_t)(uint32_t)m->sync_steps, 4);
+    put_le(out + 38, (uint64_t)(uint32_t)m->sync_steps_a, 4);
     if (m->samples_len)
-        memcpy(out + 38, m->samples, m->samples_len);
-    return 38u + m->samples_len;
+        memcpy(out + 42, m->samples, m->samples_len);
+    return 42u + m->samples_len;
 }
 
 bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *m)
@@ -437,8 +438,9 @@ bool dmdsm_unpack_waveform(const uint8_t *p, size_t len, struct dmdsm_waveform *
     m->adc_overruns = (uint32_t)get_le(p + 26, 4);
     m->integrity_faults = (uint32_t)get_le(p + 30, 4);
     m->sync_steps = (uint32_t)get_le(p + 34, 4);
-    m->samples = p + 38;
-    m->samples_len = len - 38u;
+    m->sync_steps_a = (uint32_t)get_le(p + 38, 4);
+    m->samples = p + 42;
+    m->samples_len = len - 42u;
     return true;
 }
 
@@ -468,7 +470,8 @@ size_t dmdsm_pack_motion_sync(const struct dmdsm_motion_sync *m, uint8_t *out)
     put_le(out + 4, (uint64_t)(uint64_t)m->first_edge, 8);
     put_le(out + 12, (uint64_t)(uint64_t)m->last_edge, 8);
     put_le(out + 20, (uint64_t)(uint32_t)m->edges, 4);
-    return 24u;
+    put_le(out + 24, (uint64_t)(uint8_t)m->input, 1);
+    return 25u;
 }
 
 bool dmdsm_unpack_motion_sync(const uint8_t *p, size_t len, struct dmdsm_motion_sync *m)
@@ -479,6 +482,7 @@ bool dmdsm_unpack_motion_sync(const uint8_t *p, size_t len, struct dmdsm_motion_
     m->first_edge = (uint64_t)get_le(p + 4, 8);
     m->last_edge = (uint64_t)get_le(p + 12, 8);
     m->edges = (uint32_t)get_le(p + 20, 4);
+    m->input = (uint8_t)get_le(p + 24, 1);
     return true;
 }
 
@@ -600,8 +604,9 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "adc_overruns=%llu ", (unsigned long long)get_le(payload + 26, 4));
         put(&w, "integrity_faults=%llu ", (unsigned long long)get_le(payload + 30, 4));
         put(&w, "sync_steps=%llu ", (unsigned long long)get_le(payload + 34, 4));
-        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 38u),
-            (unsigned long)crc32_of(payload + 38, len - 38u));
+        put(&w, "sync_steps_a=%llu ", (unsigned long long)get_le(payload + 38, 4));
+        put(&w, "samples:len=%lu:crc=%08lx ", (unsigned long)(len - 42u),
+            (unsigned long)crc32_of(payload + 42, len - 42u));
         break;
     }
     case 0xa1: {
@@ -616,6 +621,7 @@ int dmdsm_msg_format(uint8_t type, const uint8_t *payload, size_t len,
         put(&w, "first_edge=%llu ", (unsigned long long)get_le(payload + 4, 8));
         put(&w, "last_edge=%llu ", (unsigned long long)get_le(payload + 12, 8));
         put(&w, "edges=%llu ", (unsigned long long)get_le(payload + 20, 4));
+        put(&w, "input=%llu ", (unsigned long long)get_le(payload + 24, 1));
         break;
     }
     default:

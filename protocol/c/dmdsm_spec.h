@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 #define DMDSM_PROTOCOL_VERSION 1u
-#define DMDSM_SPEC_HASH UINT64_C(0x2889145dfb22f671)
+#define DMDSM_SPEC_HASH UINT64_C(0xd3ea52681c7f7efb)
 #define DMDSM_MAX_PAYLOAD 16448u
 #define DMDSM_MAX_COMMAND_PAYLOAD 64u
 #define DMDSM_SYNC_QUIET_MS 20u
@@ -65,6 +65,12 @@ enum dmdsm_modality {
 enum dmdsm_sample_format {
     DMDSM_SAMPLE_FORMAT_U16_MEAN = 0, /* u16 ADC counts, mean of n_average shots rounded to nearest */
     DMDSM_SAMPLE_FORMAT_U32_SUM = 1, /* u32 sum of n_average shots of u16 counts (keeps sub-LSB precision) */
+};
+
+/* which of the stage's STEP lines a motion-sync input is wired to (docs/firmware.md) */
+enum dmdsm_sync_input {
+    DMDSM_SYNC_INPUT_X = 0, /* the X stepper's STEP line (PB3, TIM2 CH2): the fly lines' axis */
+    DMDSM_SYNC_INPUT_A = 1, /* the turntable's STEP line (the former E0 driver; PB10, TIM2 CH3): the table's turn */
 };
 
 /* severity of a log message */
@@ -259,7 +265,7 @@ size_t dmdsm_pack_nak(const struct dmdsm_nak *m, uint8_t *out);
 bool dmdsm_unpack_nak(const uint8_t *p, size_t len, struct dmdsm_nak *m);
 
 /* waveform: one averaged shot; seq counts waveform frames so the host sees gaps (device -> host) */
-#define DMDSM_WAVEFORM_FIXED_SIZE 38u
+#define DMDSM_WAVEFORM_FIXED_SIZE 42u
 struct dmdsm_waveform {
     uint32_t shot_id; /* counts waveforms since arm, from 0, one per waveform sent (skipped triggers take no id): a gap is a frame lost on the link */
     uint64_t timestamp; /* device clock at the first averaged shot's edge [ticks] */
@@ -273,6 +279,7 @@ struct dmdsm_waveform {
     uint32_t adc_overruns; /* device's cumulative ADC overrun counter */
     uint32_t integrity_faults; /* device's cumulative sample-integrity fault counter (bursts dropped: DMA position disagreed with the timer) */
     uint32_t sync_steps; /* sum over the averaged shots of the motion-sync edges counted in the open burst before each shot's edge: / n_average, the mean X steps made since the burst began (0 with no burst open) [steps] */
+    uint32_t sync_steps_a; /* the same for the A (turntable) sync input: / n_average, the mean A steps made since its burst began (0 with no burst open) [steps] */
     const uint8_t *samples; /* the waveform; element type from sample_format */
     size_t samples_len; /* bytes */
 };
@@ -290,13 +297,14 @@ struct dmdsm_log {
 size_t dmdsm_pack_log(const struct dmdsm_log *m, uint8_t *out);
 bool dmdsm_unpack_log(const uint8_t *p, size_t len, struct dmdsm_log *m);
 
-/* motion_sync: one burst of step pulses on the motion-sync input (the stage's X STEP line), sent once the input has been quiet for sync_quiet_ms; timestamps in the waveforms' clock (device -> host) */
-#define DMDSM_MOTION_SYNC_FIXED_SIZE 24u
+/* motion_sync: one burst of step pulses on a motion-sync input (the stage's X or A STEP line), sent once that input has been quiet for sync_quiet_ms; timestamps in the waveforms' clock (device -> host) */
+#define DMDSM_MOTION_SYNC_FIXED_SIZE 25u
 struct dmdsm_motion_sync {
-    uint32_t burst_id; /* counts bursts since boot, from 0; gaps = lost reports */
+    uint32_t burst_id; /* counts bursts of both inputs since boot, from 0; gaps = lost reports */
     uint64_t first_edge; /* device clock at the burst's first rising edge [ticks] */
     uint64_t last_edge; /* device clock at the burst's last rising edge [ticks] */
-    uint32_t edges; /* rising edges in the burst (steps of the X axis) */
+    uint32_t edges; /* rising edges in the burst (steps of the input's axis) */
+    uint8_t input; /* the input, so the axis, the burst came on */
 };
 size_t dmdsm_pack_motion_sync(const struct dmdsm_motion_sync *m, uint8_t *out);
 bool dmdsm_unpack_motion_sync(const uint8_t *p, size_t len, struct dmdsm_motion_sync *m);

@@ -635,7 +635,7 @@ static void test_motion_sync_bursts(void)
     dmdsm_core_poll(&core);
     uint32_t t = B.now + 1000u;
     for (int i = 0; i < 500; i++, t += 123u) /* 500 steps, crossing the 32-bit wrap */
-        dmdsm_core_sync_edge(&core, t);
+        dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_X, t);
     uint32_t last = t - 123u;
     B.now = last + (DMDSM_SYNC_QUIET_MS - 1u) * ms; /* not quiet long enough yet */
     dmdsm_core_poll(&core);
@@ -649,12 +649,13 @@ static void test_motion_sync_bursts(void)
     memset(&m, 0, sizeof m);
     CHECK(dmdsm_unpack_motion_sync(msgs[0].payload, msgs[0].len, &m));
     uint64_t first = 0xFFFFFF00u - 30u * ms + 1000u;
-    CHECK(m.burst_id == 0 && m.edges == 500 && m.first_edge == first);
+    CHECK(m.burst_id == 0 && m.edges == 500 && m.first_edge == first &&
+          m.input == DMDSM_SYNC_INPUT_X);
     CHECK(m.last_edge == first + 499u * 123u && m.last_edge > 0xFFFFFFFFull);
     CHECK(B.locks == 0 && B.max_locks == 1);
     /* the next move is the next burst */
-    dmdsm_core_sync_edge(&core, B.now + 5u);
-    dmdsm_core_sync_edge(&core, B.now + 9u);
+    dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_X, B.now + 5u);
+    dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_X, B.now + 9u);
     B.now += 9u + 25u * ms;
     dmdsm_core_poll(&core);
     drain();
@@ -679,16 +680,19 @@ static void test_waveforms_count_the_steps_before_their_shots(void)
     expect_ack(DMDSM_MSG_ARM, 2);
     B.now = 0xFFFFF000u;
     uint32_t step = 0xFFFFF000u; /* X steps every 150 ticks from here */
-    uint32_t counts[6];
+    uint32_t counts[6], counts_a[6];
     for (int i = 0; i < 6; i++) {
         uint32_t laser = 0xFFFFF000u + 700u * (uint32_t)i + 75u; /* between two steps */
         /* the capture completes 4 steps (600 ticks) after its laser edge */
         while ((int32_t)(step - (laser + 600u)) <= 0) {
-            dmdsm_core_sync_edge(&core, step);
+            dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_X, step);
+            if (((step - 0xFFFFF000u) / 150u) % 3u == 0) /* the table steps a third as often */
+                dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_A, step + 7u);
             step += 150u;
         }
         B.now = laser + 600u;
         counts[i] = (laser - 0xFFFFF000u) / 150u + 1u; /* edges at or before the laser's */
+        counts_a[i] = (laser - 0xFFFFF000u - 7u) / 450u + 1u; /* A: 7 ticks later, 450 apart */
         shot(100, laser);
     }
     drain();
@@ -696,11 +700,49 @@ static void test_waveforms_count_the_steps_before_their_shots(void)
     struct dmdsm_waveform w;
     CHECK(dmdsm_unpack_waveform(msgs[0].payload, msgs[0].len, &w));
     CHECK(w.sync_steps == counts[0] + counts[1] + counts[2]);
+    CHECK(w.sync_steps_a == counts_a[0] + counts_a[1] + counts_a[2]);
     CHECK(dmdsm_unpack_waveform(msgs[1].payload, msgs[1].len, &w));
     CHECK(w.sync_steps == counts[3] + counts[4] + counts[5] && counts[5] == 24u);
+    CHECK(w.sync_steps_a == counts_a[3] + counts_a[4] + counts_a[5] && counts_a[5] == 8u);
     CHECK(B.locks == 0);
-    /* no burst open: 0 */
-    CHECK(dmdsm_core_sync_count_at(&core, step + 1000u) == core.sync_edges);
+    CHECK(dmdsm_core_sync_count_at(&core, DMDSM_SYNC_INPUT_X, step + 1000u) ==
+          core.sync[DMDSM_SYNC_INPUT_X].edges);
+    /* an input the core does not have counts nothing and takes no edge */
+    dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUTS, step);
+    CHECK(dmdsm_core_sync_count_at(&core, DMDSM_SYNC_INPUTS, step + 1000u) == 0);
+}
+
+/* the X and A inputs make bursts of their own, each reported with its input once that input
+ * is quiet, whatever the other does meanwhile (the table turning on while X has stopped) */
+static void test_two_inputs_burst_apart(void)
+{
+    reset();
+    const uint32_t ms = info.tick_hz / 1000u;
+    B.now = 1000u;
+    dmdsm_core_poll(&core);
+    uint32_t t = B.now;
+    for (int i = 0; i < 40; i++, t += ms) { /* X steps 10 ms, A steps through 40 ms */
+        if (i < 10)
+            dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_X, t);
+        dmdsm_core_sync_edge(&core, DMDSM_SYNC_INPUT_A, t + 3u);
+        B.now = t + 3u;
+        dmdsm_core_poll(&core);
+    }
+    drain();
+    /* X's 10 edges ended 30 ms ago: reported; A still steps */
+    CHECK(n_msgs == 1);
+    struct dmdsm_motion_sync m;
+    memset(&m, 0, sizeof m);
+    CHECK(dmdsm_unpack_motion_sync(msgs[0].payload, msgs[0].len, &m));
+    CHECK(m.input == DMDSM_SYNC_INPUT_X && m.edges == 10 && m.burst_id == 0);
+    CHECK(m.first_edge == 1000u && m.last_edge == 1000u + 9u * ms);
+    B.now += DMDSM_SYNC_QUIET_MS * ms;
+    dmdsm_core_poll(&core);
+    drain();
+    CHECK(n_msgs == 1 && dmdsm_unpack_motion_sync(msgs[0].payload, msgs[0].len, &m));
+    CHECK(m.input == DMDSM_SYNC_INPUT_A && m.edges == 40 && m.burst_id == 1);
+    CHECK(m.first_edge == 1003u && m.last_edge == 1003u + 39u * ms);
+    CHECK(B.locks == 0);
 }
 
 int main(void)
@@ -725,6 +767,7 @@ int main(void)
     test_clock_sync();
     test_motion_sync_bursts();
     test_waveforms_count_the_steps_before_their_shots();
+    test_two_inputs_burst_apart();
     if (failures) {
         fprintf(stderr, "test_core: %d check(s) failed\n", failures);
         return 1;

@@ -152,7 +152,7 @@ def test_info_says_what_rate_the_link_sustains(emulator):
     r = dmdsm("info", "--sensor", emu.sensor)
     assert r.returncode == 0, r.stderr
     line = next(t for t in r.stdout.splitlines() if t.startswith("link: "))
-    assert "1024 samples is 2106 B on the wire" in line and "95 waveforms/s" in line
+    assert "1024 samples is 2110 B on the wire" in line and "95 waveforms/s" in line
 
 
 def test_acquire_help_gives_every_default():

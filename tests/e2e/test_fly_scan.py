@@ -78,7 +78,7 @@ def test_ctrl_c_keeps_whole_lines_and_the_same_command_resumes(emulator, tmp_pat
 
 
 def test_a_fly_scan_without_the_sync_wire_says_what_to_wire(emulator, tmp_path):
-    emu = emulator(speed=4.0, scene="aluminium_block", seed=10, sync_wire=False)
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=10, sync_wire="")
     setup(emu, tmp_path, angles=(0.0,))
     r = subprocess.run(scan_cmd(emu, tmp_path, "nowire"), capture_output=True, text=True,
                        timeout=900)

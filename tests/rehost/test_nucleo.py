@@ -147,3 +147,32 @@ def test_the_x_step_line_is_time_stamped_by_tim2_ch2_and_reported_as_one_burst()
     edges = sim.stage.planner.step_edges(0, 0.0, 10.0)
     span = (edges[-1] - edges[0]) * 240e6
     assert abs((syncs[0].last_edge - syncs[0].first_edge) - span) <= 2  # ticks
+
+
+def test_the_table_step_line_is_time_stamped_by_tim2_ch3_and_reported_as_its_own_burst():
+    """The turntable's STEP line on PB10 (TIM2 CH3): its burst comes with input a, X's with
+    input x, each time-stamped to the tick; a waveform armed meanwhile counts the table's
+    steps (sync_steps_a) and not X's."""
+    host = start()
+    host.request("identify")
+    sim = host.sim
+    host.request("set_config", **{**CFG, "n_samples": 256})
+    host.request("arm", n_shots=0)
+    sim.write("stage", b"G91\nG1 A45 F2700\nG4 P100\nG1 X2 F3000\n")
+    msgs = host.collect(2.5)
+    assert sim.sensor.violation is None, str(sim.sensor.violation)
+    syncs = [m for m in msgs if m.name == "motion_sync"]
+    inputs = SPEC.enums["sync_input"]
+    assert [(m.input, m.edges) for m in syncs] == [(inputs["a"], 400), (inputs["x"], 160)]
+    edges = sim.stage.planner.step_edges(3, 0.0, 10.0)
+    assert len(edges) == 400
+    span = (edges[-1] - edges[0]) * 240e6  # TIM2 started at boot: spans, not origins
+    assert abs((syncs[0].last_edge - syncs[0].first_edge) - span) <= 2  # ticks
+    x = sim.stage.planner.step_edges(0, 0.0, 10.0)
+    assert abs((syncs[1].first_edge - syncs[0].last_edge) - (x[0] - edges[-1]) * 240e6) <= 2
+    waves = [m for m in msgs if m.name == "waveform"]
+    turning = [w for w in waves if syncs[0].first_edge <= w.timestamp < syncs[0].last_edge]
+    assert len(turning) > 50
+    assert all(w.sync_steps == 0 for w in turning)
+    counts = [w.sync_steps_a for w in turning]
+    assert counts == sorted(counts) and counts[-1] > 0

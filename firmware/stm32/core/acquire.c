@@ -72,7 +72,7 @@ static void reset_average(struct dmdsm_core *c)
 {
     c->n_in_avg = 0;
     c->avg_phase_sum = 0;
-    c->avg_sync_steps = 0;
+    memset(c->avg_sync_steps, 0, sizeof c->avg_sync_steps);
     memset(c->acc, 0, sizeof c->acc[0] * c->cfg.n_samples);
 }
 
@@ -114,7 +114,8 @@ static void emit_waveform(struct dmdsm_core *c)
         .sample_rate_div = cfg->sample_rate_div, .sample_format = cfg->sample_format,
         .modality = cfg->modality, .triggers_skipped = c->count.triggers_skipped,
         .adc_overruns = c->count.adc_overruns, .integrity_faults = c->count.integrity_faults,
-        .sync_steps = c->avg_sync_steps,
+        .sync_steps = c->avg_sync_steps[DMDSM_SYNC_INPUT_X],
+        .sync_steps_a = c->avg_sync_steps[DMDSM_SYNC_INPUT_A],
         .samples = NULL, .samples_len = 0};
     uint8_t head[DMDSM_WAVEFORM_FIXED_SIZE];
     struct dmdsm_encoder e;
@@ -222,7 +223,8 @@ void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
         for (uint32_t i = 0; i < c->cfg.n_samples; i++)
             c->acc[i] += samples[i];
         c->avg_phase_sum += phase;
-        c->avg_sync_steps += dmdsm_core_sync_count_at(c, edge_ticks);
+        for (unsigned k = 0; k < DMDSM_SYNC_INPUTS; k++)
+            c->avg_sync_steps[k] += dmdsm_core_sync_count_at(c, k, edge_ticks);
         if (++c->n_in_avg == c->cfg.n_average) {
             emit_waveform(c);
             reset_average(c);

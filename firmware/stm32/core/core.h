@@ -21,9 +21,20 @@
 /* sync edge times kept to count the edges before a shot: a burst's capture-done comes one
  * ADC burst (~0.3 ms) after its laser edge, when X (<= 16 kHz of steps) made at most ~6 more */
 #define DMDSM_SYNC_RING 16u
+/* motion-sync inputs: X and A STEP lines (enum dmdsm_sync_input) */
+#define DMDSM_SYNC_INPUTS 2u
 #define DMDSM_CORE_CTL_FRAME DMDSM_WIRE_SIZE(240u)
 #define DMDSM_CORE_RX_CAP \
     DMDSM_ENCODED_SIZE(DMDSM_HEADER_SIZE + DMDSM_MAX_COMMAND_PAYLOAD + DMDSM_CRC_SIZE)
+
+/* one motion-sync input (sync.c): written by the board's edge interrupt, read by poll */
+struct dmdsm_sync_line {
+    volatile uint32_t first; /* 32-bit ticks of the open burst's first edge */
+    volatile uint32_t last;  /* ... and of its latest edge */
+    volatile uint32_t edges; /* edges in the open burst; 0 = no burst open */
+    /* ticks of the open burst's latest edges: edge n at [n % DMDSM_SYNC_RING] */
+    volatile uint32_t ring[DMDSM_SYNC_RING];
+};
 
 /* cumulative counters since boot, reported in status */
 struct dmdsm_counters {
@@ -57,15 +68,11 @@ struct dmdsm_core {
     uint32_t n_in_avg;
     uint64_t avg_first_edge;
     uint32_t avg_phase_sum;
-    uint32_t avg_sync_steps; /* sum of each averaged shot's sync edge count */
+    /* sum of each averaged shot's sync edge count, per input */
+    uint32_t avg_sync_steps[DMDSM_SYNC_INPUTS];
     struct dmdsm_counters count;
-    /* motion-sync input (sync.c): written by the board's edge interrupt, read by poll */
-    volatile uint32_t sync_first; /* 32-bit ticks of the open burst's first edge */
-    volatile uint32_t sync_last;  /* ... and of its latest edge */
-    volatile uint32_t sync_edges; /* edges in the open burst; 0 = no burst open */
-    /* ticks of the open burst's latest edges: edge n at [n % DMDSM_SYNC_RING] */
-    volatile uint32_t sync_ring[DMDSM_SYNC_RING];
-    uint32_t sync_burst_id;       /* next motion_sync's burst_id */
+    struct dmdsm_sync_line sync[DMDSM_SYNC_INPUTS]; /* the X and A STEP lines */
+    uint32_t sync_burst_id;       /* next motion_sync's burst_id (both inputs) */
     /* receive */
     struct dmdsm_decoder rx;
     uint8_t rx_buf[DMDSM_CORE_RX_CAP];
@@ -107,12 +114,13 @@ bool dmdsm_core_takes_shot(struct dmdsm_core *c, uint32_t edge_ticks);
  * phase in ticks, and how it ended (enum dmdsm_capture) */
 void dmdsm_core_capture_done(struct dmdsm_core *c, const uint16_t *samples,
                              uint32_t edge_ticks, uint16_t phase, enum dmdsm_capture result);
-/* a rising edge on the motion-sync input at 32-bit ticks (the board's capture interrupt) */
-void dmdsm_core_sync_edge(struct dmdsm_core *c, uint32_t ticks);
-/* from poll: report a burst that has been quiet for DMDSM_SYNC_QUIET_MS */
+/* a rising edge on motion-sync input `input` (enum dmdsm_sync_input) at 32-bit ticks (the
+ * board's capture interrupt); an input number the core does not have is ignored */
+void dmdsm_core_sync_edge(struct dmdsm_core *c, unsigned input, uint32_t ticks);
+/* from poll: report each input's burst that has been quiet for DMDSM_SYNC_QUIET_MS */
 void dmdsm_core_sync_poll(struct dmdsm_core *c);
-/* edges of the open burst at or before 32-bit ticks (a laser edge of the last ~1 ms) */
-uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, uint32_t ticks);
+/* edges of an input's open burst at or before 32-bit ticks (a laser edge of the last ~1 ms) */
+uint32_t dmdsm_core_sync_count_at(struct dmdsm_core *c, unsigned input, uint32_t ticks);
 /* run from the main loop: starts queued transfers, checks the trigger timeout */
 void dmdsm_core_poll(struct dmdsm_core *c);
 /* current time in ticks, 64-bit */

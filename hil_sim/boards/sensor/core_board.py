@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -32,7 +32,7 @@ SYNC_LOOKBACK_S = 1e-3  # s: how far back each delivery of sync edges looks agai
 
 
 class SyncWire:
-    """The X STEP wire as this board takes its edges: each delivery looks SYNC_LOOKBACK_S
+    """A STEP wire (X or A) as this board takes its edges: each delivery looks SYNC_LOOKBACK_S
     back and passes every edge once. A block the stage starts on the very instant of the
     previous delivery (its third queued block arrived then, ending Marlin's lone-block
     hold) steps first at that instant, which a plain (t_from, t_to] window misses."""
@@ -77,10 +77,12 @@ class SensorBoard:
     def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
                  seed: int = 0, rep_rate_hz: float = 1000.0,
                  link_bytes_per_s: float = 200_000.0, max_samples: int = 8192,
-                 frozen_noise: bool = False, sync_edges: Edges | None = None) -> None:
+                 frozen_noise: bool = False,
+                 sync_edges: Sequence[Edges | None] | None = None) -> None:
         self.scene = scene
-        # the stage's X STEP line, wired to the sync input
-        self.sync_source = SyncWire(sync_edges) if sync_edges is not None else None
+        # the stage's X and A STEP lines, wired to sync inputs 0 and 1 (None: not wired)
+        self.sync_sources = [SyncWire(e) if e is not None else None
+                             for e in (sync_edges or ())]
         self.sync_until = 0.0          # edges up to this time (s) have been delivered
         self.pose = pose
         self.model = model or SensorModel()
@@ -167,10 +169,12 @@ class SensorBoard:
 
     def _sync_to(self, t: float) -> None:
         """Deliver the motion-sync edges up to time t (s) to the core, before anything at t."""
-        if self.sync_source is not None and t > self.sync_until:
-            edges = self.sync_source.take(self.sync_until, t)
-            if edges.size:
-                self.core.sync_edges(np.rint(edges * TICK_HZ).astype(np.int64))
+        if t > self.sync_until:
+            for k, source in enumerate(self.sync_sources):
+                if source is not None:
+                    edges = source.take(self.sync_until, t)
+                    if edges.size:
+                        self.core.sync_edges(np.rint(edges * TICK_HZ).astype(np.int64), k)
             self.sync_until = t
 
     def step_to(self, now: float) -> None:

@@ -51,7 +51,7 @@ def _load() -> ctypes.CDLL:
     lib.dmdsm_pc_capture.argtypes = [p, p, u32, u16, ctypes.c_int]
     lib.dmdsm_pc_takes_shot.argtypes = [p, u32]
     lib.dmdsm_pc_takes_shot.restype = ctypes.c_int
-    lib.dmdsm_pc_sync_edges.argtypes = [p, p, ctypes.c_size_t]
+    lib.dmdsm_pc_sync_edges.argtypes = [p, ctypes.c_uint, p, ctypes.c_size_t]
     lib.dmdsm_pc_poll.argtypes = [p]
     lib.dmdsm_pc_set_link_rate.argtypes = [p, u32]
     lib.dmdsm_pc_state.argtypes = [p]
@@ -126,12 +126,13 @@ class FirmwareCore:
         self._l.dmdsm_pc_capture(self._dev, s.ctypes.data, edge_ticks & 0xFFFFFFFF,
                                  phase_ticks, result)
 
-    def sync_edges(self, ticks: np.ndarray) -> None:
-        """Rising edges on the motion-sync input at these 32-bit ticks, in time order."""
+    def sync_edges(self, ticks: np.ndarray, input: int = 0) -> None:
+        """Rising edges on motion-sync input `input` (0 = X, 1 = A STEP line) at these 32-bit
+        ticks, in time order."""
         t = np.ascontiguousarray(np.asarray(ticks, dtype=np.int64) & 0xFFFFFFFF,
                                  dtype=np.uint32)
         if t.size:
-            self._l.dmdsm_pc_sync_edges(self._dev, t.ctypes.data, t.size)
+            self._l.dmdsm_pc_sync_edges(self._dev, input, t.ctypes.data, t.size)
 
     @property
     def state(self) -> int:

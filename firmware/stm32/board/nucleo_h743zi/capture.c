@@ -25,6 +25,8 @@
  * 277.8 ns at 36 MHz; 300 ns leaves 8 % for the trigger resynchronisation. T = 72 ticks at
  * 240 MHz (rev V), 60 at 200 MHz (rev Y): 3.333 MS/s on both. */
 #define PERIOD_MIN_NS 300u
+/* the motion-sync inputs' capture interrupts (X on CH2, A on CH3): always on */
+#define SYNC_IE (TIM_DIER_CC2IE | TIM_DIER_CC3IE)
 
 _Static_assert((RING & (RING - 1u)) == 0, "RING must be a power of two");
 _Static_assert((RING * sizeof(uint16_t)) % DCACHE_LINE == 0, "ring is whole cache lines");
@@ -111,9 +113,11 @@ void capture_init(void)
     GPIOA->MODER = (GPIOA->MODER & ~3u) | 2u;
     GPIOA->AFR[0] = (GPIOA->AFR[0] & ~0xFu) | 1u;
     GPIOA->MODER |= 3u << (2 * 6);
-    /* PB3 = TIM2_CH2 (AF1): the stage's X STEP line (motion sync) */
-    GPIOB->MODER = (GPIOB->MODER & ~(3u << (2 * 3))) | (2u << (2 * 3));
+    /* PB3 = TIM2_CH2 (AF1): the stage's X STEP line; PB10 = TIM2_CH3 (AF1): its A STEP line */
+    GPIOB->MODER = (GPIOB->MODER & ~((3u << (2 * 3)) | (3u << (2 * 10)))) |
+                   (2u << (2 * 3)) | (2u << (2 * 10));
     GPIOB->AFR[0] = (GPIOB->AFR[0] & ~(0xFu << (4 * 3))) | (1u << (4 * 3));
+    GPIOB->AFR[1] = (GPIOB->AFR[1] & ~(0xFu << (4 * 2))) | (1u << (4 * 2));
 
     /* TIM8: update every T ticks -> TRGO -> ADC; started by TIM2's TRGO (ITR1) */
     TIM8->PSC = 0;
@@ -125,9 +129,11 @@ void capture_init(void)
     TIM2->ARR = 0xFFFFFFFFu;
     TIM2->CCMR1 = TIM_CCMR1_CC1S_TI1 | (2u << TIM_CCMR1_IC1F_SHIFT) | /* 4-sample filters */
                   TIM_CCMR1_CC2S_TI2 | (2u << TIM_CCMR1_IC2F_SHIFT);
-    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E; /* CH2: rising edges (a step) */
-    TIM2->SR = ~(TIM_SR_CC2IF | TIM_SR_CC2OF);
-    TIM2->DIER = TIM_DIER_CC2IE;
+    TIM2->CCMR2 = TIM_CCMR2_CC3S_TI3 | (2u << TIM_CCMR2_IC3F_SHIFT);
+    /* CH2, CH3: rising edges (a step) */
+    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E | TIM_CCER_CC3E;
+    TIM2->SR = ~(TIM_SR_CC2IF | TIM_SR_CC2OF | TIM_SR_CC3IF | TIM_SR_CC3OF);
+    TIM2->DIER = SYNC_IE;
     TIM2->CR1 = TIM_CR1_CEN;
     TIM2->CR2 = TIM_CR2_MMS_ENABLE;
     wait_use_tim2(clocks.timclk_hz);
@@ -151,16 +157,17 @@ void capture_arm(const struct dmdsm_set_config *cfg)
     if (T != cap.T || cap.suspect)
         pacing_start(T); /* suspect: the check failed while nothing was captured */
     cap.cfg = *cfg;
-    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E | (cfg->trigger_edge ? TIM_CCER_CC1P : 0u);
+    TIM2->CCER = TIM_CCER_CC1E | TIM_CCER_CC2E | TIM_CCER_CC3E |
+                 (cfg->trigger_edge ? TIM_CCER_CC1P : 0u);
     TIM2->SR = ~(TIM_SR_CC1IF | TIM_SR_CC1OF);
     cap.edge = 0;
     cap.armed = 1;
-    TIM2->DIER = TIM_DIER_CC1IE | TIM_DIER_CC2IE;
+    TIM2->DIER = TIM_DIER_CC1IE | SYNC_IE;
 }
 
 void capture_disarm(void)
 {
-    TIM2->DIER = TIM_DIER_CC2IE;
+    TIM2->DIER = SYNC_IE;
     cap.armed = 0;
     cap.edge = 0;
 }
@@ -173,27 +180,33 @@ void capture_sync_to(struct dmdsm_core *core)
     sync_core = core;
 }
 
-/* TIM2: a step on CH2 (motion sync) and/or the laser edge on CH1, each latched in hardware */
+/* TIM2: a step on CH2 or CH3 (motion sync: X, A) and/or the laser edge on CH1, each latched
+ * in hardware */
 void TIM2_IRQHandler(void)
 {
     uint32_t sr = TIM2->SR;
     if (sr & TIM_SR_CC2IF) {
         uint32_t s = TIM2->CCR2; /* reading CCR2 clears CC2IF */
         if (sync_core != NULL)
-            dmdsm_core_sync_edge(sync_core, s);
+            dmdsm_core_sync_edge(sync_core, DMDSM_SYNC_INPUT_X, s);
+    }
+    if (sr & TIM_SR_CC3IF) {
+        uint32_t s = TIM2->CCR3; /* reading CCR3 clears CC3IF */
+        if (sync_core != NULL)
+            dmdsm_core_sync_edge(sync_core, DMDSM_SYNC_INPUT_A, s);
     }
     if (!(sr & TIM_SR_CC1IF))
         return;
     uint32_t e = TIM2->CCR1; /* reading CCR1 clears CC1IF */
     if (!cap.armed) {
-        TIM2->DIER = TIM_DIER_CC2IE;
+        TIM2->DIER = SYNC_IE;
         return;
     }
     uint32_t since = e - cap.t0;
     uint32_t k = since / cap.T; /* samples 0..k-1 were taken at or before the edge */
     if (before_t0(since) || cap.k0 + k < cap.cfg.pretrigger)
         return; /* sampling (re)started too recently for the pre-trigger: next edge */
-    TIM2->DIER = TIM_DIER_CC2IE; /* one edge per burst; re-armed by the core */
+    TIM2->DIER = SYNC_IE; /* one edge per burst; re-armed by the core */
     uint32_t next_at = (k + 1u) * cap.T;
     cap.phase = (uint16_t)(next_at - since);
     cap.start = cap.k0 + k - cap.cfg.pretrigger;

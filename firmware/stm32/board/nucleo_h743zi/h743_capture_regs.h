@@ -134,6 +134,12 @@ CHECK_OFFSET(struct tim, BDTR, 0x44);
 #define TIM_CCMR1_CC2S_TI2 (1u << 8)
 #define TIM_CCMR1_IC2F_SHIFT 12u
 #define TIM_CCER_CC2E (1u << 4)
+#define TIM_DIER_CC3IE (1u << 3)
+#define TIM_SR_CC3IF (1u << 3)
+#define TIM_SR_CC3OF (1u << 11)
+#define TIM_CCMR2_CC3S_TI3 1u
+#define TIM_CCMR2_IC3F_SHIFT 4u
+#define TIM_CCER_CC3E (1u << 8)
 #define TIM_BDTR_MOE (1u << 15)
 
 #endif /* DMDSM_H743_CAPTURE_REGS_H */

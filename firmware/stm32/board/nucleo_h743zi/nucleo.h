@@ -12,6 +12,8 @@
  * Pins (NUCLEO-144 connectors):
  *   PA0  TIM2_CH1 (AF1)  photodiode comparator output: the laser edge
  *   PA6  ADC12_INP3      pre-amplified transducer signal (fast channel, 0-3.3 V)
+ *   PB3  TIM2_CH2 (AF1)  the stage's X STEP line (motion sync, input x)
+ *   PB10 TIM2_CH3 (AF1)  the stage's turntable (A, former E0) STEP line (motion sync, input a)
  *   PD8  USART3_TX (AF7) ST-LINK virtual COM port
  *   PD9  USART3_RX (AF7)
  *   PB0  LD1 green (heartbeat), PB14 LD3 red (error, boot blink code)
@@ -44,7 +46,8 @@ bool capture_available(void);
 void capture_arm(const struct dmdsm_set_config *cfg);
 void capture_disarm(void);
 struct dmdsm_core;
-/* motion sync: TIM2 CH2 (PB3) rising edges go to this core's dmdsm_core_sync_edge */
+/* motion sync: TIM2 CH2 (PB3, X) and CH3 (PB10, A) rising edges go to this core's
+ * dmdsm_core_sync_edge */
 void capture_sync_to(struct dmdsm_core *core);
 uint32_t capture_now(void);
 /* 1 when a burst is complete: samples, edge ticks, phase ticks, and how it ended */

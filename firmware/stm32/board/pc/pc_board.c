@@ -125,11 +125,12 @@ void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge
     dmdsm_core_capture_done(&d->core, samples, edge_ticks, phase, r);
 }
 
-/* rising edges on the motion-sync input, at 32-bit ticks, in time order */
-void dmdsm_pc_sync_edges(struct dmdsm_pc *d, const uint32_t *ticks, size_t n)
+/* rising edges on motion-sync input `input` (enum dmdsm_sync_input), at 32-bit ticks, in
+ * time order */
+void dmdsm_pc_sync_edges(struct dmdsm_pc *d, unsigned input, const uint32_t *ticks, size_t n)
 {
     for (size_t i = 0; i < n; i++)
-        dmdsm_core_sync_edge(&d->core, ticks[i]);
+        dmdsm_core_sync_edge(&d->core, input, ticks[i]);
 }
 
 void dmdsm_pc_set_link_rate(struct dmdsm_pc *d, uint32_t bytes_per_s)

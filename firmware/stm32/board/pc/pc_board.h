@@ -27,7 +27,8 @@ int dmdsm_pc_takes_shot(struct dmdsm_pc *d, uint32_t edge_ticks);
  * 1 = ADC overrun, 2 = sample-integrity fault (enum dmdsm_capture); only good ones are averaged */
 void dmdsm_pc_capture(struct dmdsm_pc *d, const uint16_t *samples, uint32_t edge_ticks,
                       uint16_t phase, int result);
-void dmdsm_pc_sync_edges(struct dmdsm_pc *d, const uint32_t *ticks, size_t n);
+void dmdsm_pc_sync_edges(struct dmdsm_pc *d, unsigned input, const uint32_t *ticks,
+                         size_t n);
 /* the rate (bytes/s) the emulator drains the link at, as a board knows its baud rate
  * (board_info.link_bytes_per_s); 0 = unknown (the default) */
 void dmdsm_pc_set_link_rate(struct dmdsm_pc *d, uint32_t bytes_per_s);

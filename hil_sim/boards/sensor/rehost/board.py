@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -65,21 +65,29 @@ class Laser:
 
 
 class SyncInput:
-    """The motion-sync wire: rising edges (s) from the stage's X STEP line."""
+    """The motion-sync wires: rising edges (s) from the stage's X STEP line (input 0, PB3)
+    and its A STEP line (input 1, PB10); an input with no wire has no edges."""
 
     LOOKAHEAD_S = 0.002  # how far ahead the next edge is looked for (an idle jump's bound)
 
-    def __init__(self, edges: Callable[[float, float], np.ndarray]) -> None:
-        self._edges = edges
+    def __init__(self, edges: Sequence[Callable[[float, float], np.ndarray] | None]) -> None:
+        self._edges = list(edges)
 
-    def edges(self, t0: float, t1: float) -> np.ndarray:
-        """Times (s) of the edges in (t0, t1]."""
-        return self._edges(t0, t1)
+    def edges(self, t0: float, t1: float, input: int = 0) -> np.ndarray:
+        """Times (s) of input's edges in (t0, t1]."""
+        src = self._edges[input] if input < len(self._edges) else None
+        return src(t0, t1) if src is not None else np.zeros(0)
 
     def next_edge(self, t: float) -> float:
-        """Time (s) of the first edge after t, or inf if none within the look-ahead."""
-        e = self._edges(t, t + self.LOOKAHEAD_S)
-        return float(e[0]) if len(e) else math.inf
+        """Time (s) of the first edge of any input after t, or inf if none within the
+        look-ahead."""
+        first = math.inf
+        for src in self._edges:
+            if src is not None:
+                e = src(t, t + self.LOOKAHEAD_S)
+                if len(e):
+                    first = min(first, float(e[0]))
+        return first
 
 
 class RehostedSensor:
@@ -88,7 +96,8 @@ class RehostedSensor:
     def __init__(self, scene: Scene, pose: Pose, model: SensorModel | None = None,
                  seed: int = 0, rep_rate_hz: float = 1000.0, elf: str | Path | None = None,
                  rev: str = "V", faults: tuple[str, ...] = (),
-                 sync_edges: Callable[[float, float], np.ndarray] | None = None) -> None:
+                 sync_edges: Sequence[Callable[[float, float], np.ndarray] | None] | None
+                 = None) -> None:
         self.scene, self.pose = scene, pose
         self.model = model or SensorModel()
         self.seed = seed
@@ -98,7 +107,7 @@ class RehostedSensor:
         self.mcu.analog = self.analog
         self.mcu.event_sources += [lambda: self.laser.next_edge(self.mcu.t),
                                    self.mcu.usart3.next_event]
-        if sync_edges is not None:  # the stage's X STEP line on PB3 (TIM2 CH2)
+        if sync_edges is not None:  # the stage's X and A STEP lines on PB3, PB10 (TIM2 CH2, 3)
             self.mcu.sync = SyncInput(sync_edges)
             self.mcu.event_sources.append(lambda: self.mcu.sync.next_edge(self.mcu.t))
         self.link_blocked = False

@@ -42,6 +42,13 @@ class Gpio(Peripheral):
                 self.log.append((self.m.t, pin, (odr >> pin) & 1))
         self.regs[0x14] = odr
 
+    def alternate(self, pin: int) -> int | None:
+        """The alternate function (AFR) a pin is muxed to, or None unless MODER says AF: a
+        timer input wired to a pin not set up so sees nothing."""
+        if field(self.regs.get(0, 0), 2 * pin, 2) != 2:
+            return None
+        return field(self.regs.get(0x20 if pin < 8 else 0x24, 0), 4 * (pin % 8), 4)
+
     def level(self, pin: int) -> int:
         """Output level of pin now."""
         return (self.regs.get(0x14, 0) >> pin) & 1

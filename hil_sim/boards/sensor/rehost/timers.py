@@ -5,9 +5,10 @@ starts TIM8 in trigger mode (ITR1 = TIM2 on TIM8, RM0433 Table 339), so both sta
 tick and TIM8's update k falls on TIM2 tick (k + 1) * (ARR + 1). Laser edges come from
 `machine.laser` (rising time, falling time); CH1 captures the selected edge into CCR1, sets
 CC1IF (CC1OF if it was still set) and raises IRQ 28 when CC1IE is on. Reading CCR1 clears
-CC1IF. CH2 captures the rising edges of `machine.sync` (the stage's X STEP line, the motion
-sync of docs/firmware.md) into CCR2 the same way (CC2IF, CC2OF, CC2IE; reading CCR2 clears
-CC2IF). The input filter's few-tick delay is not modelled.
+CC1IF. CH2 and CH3 capture the rising edges of `machine.sync` (the stage's X and A STEP
+lines, the motion sync of docs/firmware.md: input 0 on CH2, 1 on CH3) into CCR2 and CCR3 the
+same way (CCxIF, CCxOF, CCxIE; reading CCRx clears CCxIF), when their pins (PB3, PB10) are
+muxed to TIM2 (AF1). The input filter's few-tick delay is not modelled.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import math
 from .bus import Peripheral
 
 IRQ_TIM2 = 28
+CCR = (0x34, 0x38, 0x3C)  # CCR1..CCR3 offsets
 
 
 class Tim2(Peripheral):
@@ -48,9 +50,9 @@ class Tim2(Peripheral):
         if offset == 0x24:
             self.m.clock_polled()
             return self.ticks_at(self.m.t)
-        if offset in (0x34, 0x38):
+        if offset in CCR:
             self.advance()
-            self.regs[0x10] = self.regs.get(0x10, 0) & ~(2 if offset == 0x34 else 4)
+            self.regs[0x10] = self.regs.get(0x10, 0) & ~(1 << (CCR.index(offset) + 1))
             self.action()
         elif offset == 0x10:
             self.advance()
@@ -72,7 +74,7 @@ class Tim2(Peripheral):
             self.cnt0, self.t_start = value, self.m.t
         elif offset == 0x10:  # rc_w0
             value &= self.regs.get(0x10, 0)
-        elif offset == 0x0C and value & self.regs.get(0x10, 0) & 6:
+        elif offset == 0x0C and value & self.regs.get(0x10, 0) & 0xE:
             self.m.system.set_pending(IRQ_TIM2)
         elif offset == 0x2C and value != 0xFFFFFFFF:
             self.m.violation("unmodelled-register", "TIM2 ARR other than 0xFFFFFFFF")
@@ -90,19 +92,25 @@ class Tim2(Peripheral):
             events += [(fall if ccer & 2 else rise, 1) for rise, fall in
                        laser.edges(self.seen, now)]
         sync = getattr(self.m, "sync", None)
-        if sync is not None and self.running and ccer & 0x10 and (ccmr >> 8) & 3 == 1:
-            events += [(float(t), 2) for t in sync.edges(self.seen, now)]
+        ccmr2 = self.regs.get(0x1C, 0)
+        gpiob = self.m.gpio["B"]
+        for ch, on in ((2, ccer & 0x10 and (ccmr >> 8) & 3 == 1    # CC2E, CC2S = TI2, PB3
+                        and gpiob.alternate(3) == 1),              # in AF1 (TIM2_CH2)
+                       (3, ccer & 0x100 and ccmr2 & 3 == 1         # CC3E, CC3S = TI3, PB10
+                        and gpiob.alternate(10) == 1)):            # in AF1 (TIM2_CH3)
+            if sync is not None and self.running and on:
+                events += [(float(t), ch) for t in sync.edges(self.seen, now, ch - 2)]
         for t, ch in sorted(events):
             self._capture(t, ch)
         self.seen = now
 
     def _capture(self, t: float, ch: int = 1) -> None:
-        flag = 1 << ch  # CC1IF / CC2IF, and the same bit of DIER
+        flag = 1 << ch  # CC1IF / CC2IF / CC3IF, and the same bit of DIER
         sr = self.regs.get(0x10, 0)
         if sr & flag:
             sr |= flag << 8  # CCxOF: the previous capture was not read
         self.regs[0x10] = sr | flag
-        self.regs[0x34 if ch == 1 else 0x38] = self.ticks_at(t)
+        self.regs[CCR[ch - 1]] = self.ticks_at(t)
         if self.regs.get(0x0C, 0) & flag:
             self.m.system.set_pending(IRQ_TIM2)
 

@@ -54,7 +54,7 @@ from dmdsm.sim.servers.runner import SimConfig, Simulation
 OBJECTS = {"aluminium_block": False, "mug": False, "plastic_bottle_neck": True, "bowl": True,
            "pear": True, "can_with_label": True, "jar_with_lid": True}
 QUICK = ("aluminium_block", "mug")
-MODES = ("step", "fly", "auto")
+MODES = ("step", "fly", "auto", "sweep")
 SPACING_MM = 2.0          # coverage spacing (the target's)
 MARGIN_MM = 2.0           # the keep-out margin (host/links/safety.py KeepOut)
 MAX_DIST_POINTS = 20_000  # points per modality whose distance to the truth is computed
@@ -275,7 +275,7 @@ def fmt(x: float | None, spec: str) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
-HEAD = (f"{'object':20s} {'mode':4s} {'pts OA':>7s} {'pts US':>7s} {'wall s':>7s} "
+HEAD = (f"{'object':20s} {'mode':5s} {'pts OA':>7s} {'pts US':>7s} {'wall s':>7s} "
         f"{'emu s':>7s} {'pt/emu-s':>8s} {'cov OA':>6s} {'cov US':>6s} {'eOA mn':>6s} "
         f"{'eOA 95':>6s} {'eUS mn':>6s} {'eUS 95':>6s} {'duty':>5s} {'viol':>6s} "
         f"{'clear':>5s}")
@@ -284,9 +284,9 @@ HEAD = (f"{'object':20s} {'mode':4s} {'pts OA':>7s} {'pts US':>7s} {'wall s':>7s
 def row_text(r: dict) -> str:
     """One printed row of the table (or the scan's failure)."""
     if not r["ok"]:
-        return f"{r['object']:20s} {r['mode']:4s} FAILED: {r['reason']}"
+        return f"{r['object']:20s} {r['mode']:5s} FAILED: {r['reason']}"
     c, d, k = r["coverage"], r["distance"], r["keep_out"]
-    return (f"{r['object']:20s} {r['mode']:4s} {r['points']['oa']:7d} {r['points']['us']:7d} "
+    return (f"{r['object']:20s} {r['mode']:5s} {r['points']['oa']:7d} {r['points']['us']:7d} "
             f"{r['wall_s']:7.1f} {r['emulated_s']:7.1f} {r['points_per_emulated_s']:8.1f} "
             f"{fmt(100 * c['oa'], '5.1f'):>5s}% {fmt(100 * c['us'], '5.1f'):>5s}% "
             f"{fmt(d['oa']['mean_mm'], '6.3f'):>6s} {fmt(d['oa']['p95_mm'], '6.3f'):>6s} "
@@ -303,7 +303,7 @@ def summary(rows: list[dict], modes: list[str]) -> list[str]:
         ok = [r for r in rows if r["mode"] == mode and r["ok"]]
         failed = sum(1 for r in rows if r["mode"] == mode and not r["ok"])
         if not ok:
-            out.append(f"{mode:4s}: no finished scan ({failed} failed)")
+            out.append(f"{mode:5s}: no finished scan ({failed} failed)")
             continue
         parts = []
         for m in MODS:
@@ -318,7 +318,7 @@ def summary(rows: list[dict], modes: list[str]) -> list[str]:
         v = sum(r["keep_out"]["violations"] for r in ok)
         parts.append(f"violations {v}" + (" (met)" if v <= TARGETS["violations"] else
                                           f" (misses by {v})"))
-        out.append(f"{mode:4s} ({len(ok)} scans" + (f", {failed} failed" if failed else "") +
+        out.append(f"{mode:5s} ({len(ok)} scans" + (f", {failed} failed" if failed else "") +
                    "): " + "; ".join(parts))
     return out
 
@@ -384,7 +384,7 @@ def main() -> int:
                 if reach is not None:
                     print(f"  note: the footprint's bounding cylinder is inside the object's "
                           f"farthest point: reach_mm = {reach:g}")
-                if mode == "auto":
+                if mode in ("auto", "sweep"):
                     plan = replace(plan, levels_mm=levels)
                     plan.validate()
                 r = one_scan(obj, mode, plan, setup, args.seed, args.speed, z_band, reference,

@@ -47,22 +47,34 @@ class FakeSensor:
 
     def stream_start(self):
         self.t0 = time.monotonic()
+        self.taken = 0  # waveforms handed out by stream_take
+
+    def _waves(self, t1):
+        """Waveforms every 12 ms from stream_start to t1 (host s), their step counts from
+        the motion that started FIRST_STEP_S after the arm."""
+        start = self.t0 + self.FIRST_STEP_S  # the first step, after the first waveforms
+        times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
+        return [SimpleNamespace(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
+                                trigger_phase=7, samples=np.zeros(64, np.uint16),
+                                sync_steps=sum(self.edges_before(t + 1e-3 * k - start)
+                                               for k in range(12)), sync_steps_a=0)
+                for i, t in enumerate(times)]
+
+    def stream_take(self, wait_s=0.0):
+        """The waveforms of the stream up to now not taken yet (no waiting: they are due)."""
+        waves = self._waves(time.monotonic())[self.taken:]
+        self.taken += len(waves)
+        return waves
 
     def stream_stop(self):
-        """Waveforms every 12 ms since stream_start, their step counts from the motion that
-        started FIRST_STEP_S after the arm; no device counter changed."""
-        t1 = time.monotonic()
-        start = self.t0 + self.FIRST_STEP_S  # the first step, after the first waveforms
+        """The waveforms not taken since stream_start, and one X STEP burst report for the
+        motion; no device counter changed."""
+        waves = self._waves(time.monotonic())[self.taken:]
+        start = self.t0 + self.FIRST_STEP_S
         self.motion_syncs.append(SimpleNamespace(
             burst_id=len(self.motion_syncs), first_edge=self.ticks(start),
             last_edge=self.ticks(start + self.motion.last_step_s),
             edges=self.motion.n + self.edges_off, input=0))
-        times = np.arange(self.t0 + 0.001, t1 - 0.001, 0.012)
-        waves = [SimpleNamespace(shot_id=i, timestamp=self.ticks(t + self.jump_s), n_average=12,
-                                 trigger_phase=7, samples=np.zeros(64, np.uint16),
-                                 sync_steps=sum(self.edges_before(t + 1e-3 * k - start)
-                                                for k in range(12)))
-                 for i, t in enumerate(times)]
         return waves, dict(NO_CHANGE)
 
 

@@ -135,6 +135,6 @@ def test_the_protocols_list_what_the_procedures_use():
     assert set(members(Stage)) == {"move", "wait", "where", "send", "stop", "home"}
     assert set(members(ShotSensor)) == {"identity", "configure", "acquire"}
     assert set(members(StreamSensor)) == {"identity", "motion_syncs", "clock_exchanges",
-                                          "stream_start", "stream_stop"}
+                                          "stream_start", "stream_take", "stream_stop"}
     assert set(members(Sensor)) == members(ShotSensor).keys() | members(StreamSensor).keys() \
         | {"port_name", "disarm"}

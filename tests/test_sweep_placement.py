@@ -2,6 +2,7 @@
 reported as (host/scan/sweep.py), against a model of the board's counting."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -70,3 +71,37 @@ def test_place_on_move_puts_every_axis_at_its_share():
 def test_a_waveform_with_steps_but_no_burst_reported_is_not_placed():
     got = counted_steps(np.array([0, 100_000]), np.array([0, 5]), 1, PERIOD, [], QUIET)
     assert got[0] == 0 and np.isnan(got[1])
+
+
+def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
+    from dmdsm.host.scan.plan import ScanPlan, plan_for_size
+    from dmdsm.host.scan.sweep import sweep_feed_mm_min, sweep_points, sweep_turns
+    from dmdsm.marlin_patch import load_machine
+
+    v = np.array([0.05, 0.99, -0.02])
+    X_R = np.array([200.0, 260.0, 30.0])
+    plan = ScanPlan("can", radius_mm=34.0, levels_mm=[4.5, 6.5, 8.5, 10.5, 12.5], step_mm=2.0,
+                    average=12, mode="sweep")
+    plan.validate()
+    turns = sweep_turns(plan, v, X_R)
+    assert len(turns) == 4
+    assert [(t.a0, t.a1) for t in turns] == [(0.0, 360.0), (360.0, 0.0)] * 2
+    assert turns[0].z0 == X_R[2] + 4.5 and turns[-1].z1 == X_R[2] + 12.5
+    assert all(a.z1 == b.z0 for a, b in zip(turns, turns[1:]))
+    # the beam from the sensor passes through the table axis, standoff_mm outside the
+    # bounding cylinder
+    S = np.array([turns[0].x, turns[0].y])
+    u = v[:2] / np.linalg.norm(v[:2])
+    off = X_R[:2] - S
+    assert abs(u[0] * off[1] - u[1] * off[0]) < 1e-9
+    assert np.linalg.norm(off) == pytest.approx(plan.radius_mm + plan.standoff_mm)
+    # Z climbs the pitch over a turn at 90 deg/s: F is Z's speed (mm/min)
+    assert sweep_feed_mm_min(turns[0], 90.0) == pytest.approx(2.0 / 4.0 * 60.0)
+    pts = sweep_points(plan, turns, 90.0)
+    assert len(pts) == plan.n_points() == 4 * 333
+    m = load_machine()
+    assert plan_for_size("can", (66, 66, 122), True, mode="sweep").mode == "sweep"
+    one = ScanPlan("can", radius_mm=34.0, levels_mm=[20.0], mode="sweep")
+    (flat,) = sweep_turns(one, v, X_R)
+    assert flat.z0 == flat.z1 and sweep_feed_mm_min(flat, 90.0) == 90.0 * 60.0
+    assert m.max_feedrate[m.axis("A")] == 90

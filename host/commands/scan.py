@@ -14,7 +14,7 @@ from ..links.config import load_config, resolve_port
 from ..links.sensor import SensorClient
 from ..links.stage import StageClient
 from ..ranging.calibrate import RangingSetup
-from ..scan.plan import PlanError, load_plan
+from ..scan.plan import MODES, PlanError, load_plan
 from ..scan.scanfile import ScanFileError, ScanWriter
 from ..scan.session import checked_points, finished_scan, run_plan
 from .errors import CliError
@@ -38,10 +38,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", dest="object_id", help="override [sample] object_id")
     p.add_argument("--material", help="override [sample] material")
     p.add_argument("--scan-id", help="name of the scan (default: object id + plan hash)")
-    p.add_argument("--mode", choices=("step", "fly", "auto"),
+    p.add_argument("--mode", choices=MODES,
                    help="override [scan] mode: step and shoot, fly (each line one "
-                        "constant-speed move, shots placed by counted steps), or auto (a "
-                        "first look, then lines that follow the outline; docs/scanning.md)")
+                        "constant-speed move, shots placed by counted steps), auto (a "
+                        "first look, then lines that follow the outline) or sweep (the "
+                        "table turning while the sensor climbs; docs/scanning.md)")
     p.add_argument("--no-home", action="store_true", help="the stage is already homed")
     p.add_argument("--no-model", action="store_true",
                    help="auto: do not build the object's 3D model after the scan")

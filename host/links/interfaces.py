@@ -100,6 +100,9 @@ class StreamSensor(Protocol):
     def stream_start(self) -> None:
         """Arm continuously: every averaged waveform is kept, in order, until stream_stop."""
 
+    def stream_take(self, wait_s: float = 0.0) -> list[Message]:
+        """The streamed waveforms that arrived since the last take, waiting up to wait_s (s)."""
+
     def stream_stop(self) -> tuple[list[Message], dict]:
         """Disarm; the streamed waveform messages and the device counters' change (counts)."""
 

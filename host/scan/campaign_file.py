@@ -6,7 +6,7 @@ The format (TOML, UTF-8, at most MAX_BYTES)::
     [campaign]                      # optional, every key optional
     classifier = "household.joblib" # a `dmdsm classify train` model, relative to this file's
                                     # folder: each scan's material is checked against it
-    mode = "auto"                   # the scan mode: auto (default), step or fly
+    mode = "auto"                   # the scan mode: auto (default), step, fly or sweep
     modality = "both"               # both (default), oa or us
 
     [[object]]                      # one table per object, scanned in this order

@@ -26,7 +26,7 @@ from ..ranging.calibrate import RangingSetup
 from ..ranging.point import PointRanger
 
 MODALITIES = ("both", "oa", "us")
-MODES = ("step", "fly", "auto")
+MODES = ("step", "fly", "auto", "sweep")
 
 
 class PlanError(ValueError):
@@ -142,12 +142,26 @@ class ScanPlan:
                                 f"takes ({lo}..{hi})")
         n = len(self.levels_mm) * len(self.angles_deg) * \
             (2 * self.half_width_mm / self.step_mm + 1)  # float: no huge integers
+        if self.mode == "sweep":
+            n = (max(self.levels_mm) - min(self.levels_mm)) / self.step_mm * \
+                2 * math.pi * self.radius_mm / self.step_mm
         if not n <= MAX_POINTS:
             raise PlanError(f"the plan has {n:.3g} points (at most {MAX_POINTS}): raise step_mm "
                             f"or lower half_width_mm, or split the scan into several plans")
 
     def n_points(self) -> int:
-        """How many points the plan expands to (levels x angles x raster columns)."""
+        """How many points the plan expands to (levels x angles x raster columns; a sweep's:
+        turns x one every step_mm around the bounding cylinder)."""
+        if self.mode == "sweep":  # as sweep.sweep_points
+            from dmdsm.marlin_patch import load_machine
+
+            from .sweep import table_speed_deg_s
+
+            m = load_machine()
+            span = max(self.levels_mm) - min(self.levels_mm)
+            turns = max(math.ceil(span / self.step_mm - 1e-9), 1)
+            speed = table_speed_deg_s(self, m.max_feedrate[m.axis("A")])
+            return turns * max(int(round(360.0 / speed * self.laser_hz / self.average)), 1)
         columns = math.floor(2 * self.half_width_mm / self.step_mm + 1e-9) + 1
         return len(self.levels_mm) * len(self.angles_deg) * columns
 
@@ -235,7 +249,7 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
         radius = reach
     mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
     levels = [mm(min(0.5 * h, 40.0))]
-    if mode == "auto":  # every 2 mm over the height (the coverage spacing)
+    if mode in ("auto", "sweep"):  # every 2 mm over the height (the coverage spacing)
         levels = [mm(z) for z in np.arange(AUTO_LOWEST_MM, h - 0.5, AUTO_SPACING_MM)] or [
             mm(max(h / 2, AUTO_LOWEST_MM))]
     plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
@@ -243,9 +257,10 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                     half_width_mm=max(mm(0.35 * w), 0.1),
                     step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
-                    **({"average": FLY_AVERAGE} if mode == "fly" else
+                    **({"average": FLY_AVERAGE} if mode in ("fly", "sweep") else
                        {"average": AUTO_AVERAGE, "feed_mm_min": AUTO_FEED_MM_MIN}
-                       if mode == "auto" else {}))
+                       if mode == "auto" else {}),
+                    **({"feed_mm_min": AUTO_FEED_MM_MIN} if mode == "sweep" else {}))
     plan.validate()
     return plan
 

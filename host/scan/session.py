@@ -42,6 +42,8 @@ from .plan import (
     point_ranger,
 )
 from .scanfile import ScanFileError, ScanWriter, read_scan
+from .sweep import Turn, sweep_points, sweep_turns, table_speed_deg_s
+from .sweep_executor import run_sweep_scan
 
 
 @dataclass
@@ -92,6 +94,12 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     elif plan.mode == "fly":  # the whole swept path, run-ups and run-outs included
         targets, labels = fly_path(points, plan, machine)
         check_path(targets, labels, None, machine, zones)
+    elif plan.mode == "sweep":  # the helix: straight in X, Y, Z from turn to turn
+        turns = sweep_turns(plan, v, X_R)
+        points = sweep_points(plan, turns, table_speed_deg_s(
+            plan, machine.max_feedrate[machine.axis("A")]))
+        targets, labels = sweep_path(turns)
+        check_path(targets, labels, None, machine, zones)
     else:
         check_plan(points, None, machine, zones)
     return points
@@ -107,6 +115,17 @@ def fly_path(points: list[Point], plan: ScanPlan, machine: MachineLimits
         xs, xe = line_ends(line, plan, machine)
         targets += [np.array([xs, p.y, p.z]), np.array([xe, p.y, p.z])]
         labels += [f"line {line.index}'s run-up start", f"line {line.index}'s run-out end"]
+    return targets, labels
+
+
+def sweep_path(turns: list[Turn]) -> tuple[list[np.ndarray], list[str]]:
+    """The points a sweep's stage passes through in straight moves (X, Y, Z: the table's turn
+    moves no point of the stage), with labels for the refusal message."""
+    targets = [np.array([turns[0].x, turns[0].y, turns[0].z0])]
+    labels = ["turn 0's start"]
+    for t in turns:
+        targets.append(np.array([t.x, t.y, t.z1]))
+        labels.append(f"turn {t.index}'s end")
     return targets, labels
 
 
@@ -169,7 +188,12 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         stage.home()
     here = stage.where()
     here_xyz = np.array([here["X"], here["Y"], here["Z"]])
-    if plan.mode != "step":
+    v = np.asarray(calibration["v"], float)
+    turns = sweep_turns(plan, v, X_R) if plan.mode == "sweep" else []
+    if plan.mode == "sweep":
+        targets, labels = sweep_path(turns)
+        check_path(targets[:1], labels[:1], here_xyz, machine, keep)
+    elif plan.mode != "step":
         targets, labels = fly_path(points[:1], plan, machine)
         check_path(targets[:1], labels[:1], here_xyz, machine, keep)
     else:
@@ -217,6 +241,9 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
+        elif plan.mode == "sweep":
+            run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,
+                                       ranger, machine, progress)
         else:
             run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
         stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)

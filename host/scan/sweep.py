@@ -1,4 +1,9 @@
-"""Shots placed on moves of several axes by one axis's counted steps (the table's, for sweeps).
+"""Table sweeps: the turns, and each shot placed by the table's counted steps.
+
+A sweep (plan mode "sweep") is how turntable scanners scan: the sensor stands outside the
+object's bounding cylinder, its beam through the table axis, and the table turns under it
+while Z climbs, one turn per G1 (a helix of pitch step_mm), so the laser is never idle
+between lines. Its shots are placed by the table's steps.
 
 The sensor board counts the STEP pulses of the stage's X and table (A) lines on two sync
 inputs; each waveform carries, per input, the pulses of the open burst made before each of
@@ -21,9 +26,13 @@ Plain functions on numpy arrays: no I/O.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
+
+from .plan import Point, ScanPlan
 
 
 def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int,
@@ -72,3 +81,70 @@ def place_on_move(start: np.ndarray, delta: np.ndarray, steps_done: np.ndarray,
     steps_total): Marlin keeps every axis within one step of its share."""
     f = np.asarray(steps_done, dtype=np.float64)[:, None] / float(steps_total)
     return np.asarray(start, dtype=np.float64)[None, :] + f * np.asarray(delta)[None, :]
+
+
+# ---------------------------------------------------------------------------- the sweep plan
+
+
+@dataclass(frozen=True)
+class Turn:
+    """One turn of a sweep: the sensor at (x, y) mm (the stage frame) while Z climbs from z0
+    to z1 mm and the table turns from a0 to a1 deg, in one G1 (docs/scanning.md)."""
+
+    index: int
+    x: float
+    y: float
+    z0: float
+    z1: float
+    a0: float
+    a1: float
+
+    def steps(self, spu: Sequence[float]) -> tuple[int, int]:
+        """(Z steps, table steps) of the move, as Marlin rounds each end to whole steps."""
+        return (abs(round(self.z1 * spu[2]) - round(self.z0 * spu[2])),
+                abs(round(self.a1 * spu[3]) - round(self.a0 * spu[3])))
+
+
+def table_speed_deg_s(plan: ScanPlan, a_max_deg_s: float) -> float:
+    """The table's speed (deg/s) in a sweep: consecutive waveforms step_mm apart on the
+    bounding cylinder, at most the table's maximum feed rate."""
+    w = math.degrees(plan.step_mm / plan.radius_mm * plan.laser_hz / plan.average)
+    return min(w, a_max_deg_s)
+
+
+def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Turn]:
+    """The sweep's turns: the sensor standoff_mm outside the bounding cylinder, its beam
+    through the table axis; Z from the lowest level to the highest, step_mm a turn (one flat
+    turn with one level); the table from 0 to 360 deg and back, turn after turn (A stays
+    within one revolution)."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    vxy = v[:2] / np.linalg.norm(v[:2])
+    x, y = np.asarray(X_R, float)[:2] - (plan.radius_mm + plan.standoff_mm) * vxy
+    lo, hi = min(plan.levels_mm), max(plan.levels_mm)
+    n = max(math.ceil((hi - lo) / plan.step_mm - 1e-9), 1)
+    pitch = (hi - lo) / n if hi > lo else 0.0
+    z = float(X_R[2]) + lo
+    return [Turn(k, float(x), float(y), z + k * pitch, z + (k + 1) * pitch,
+                 0.0 if k % 2 == 0 else 360.0, 360.0 if k % 2 == 0 else 0.0)
+            for k in range(n)]
+
+
+def sweep_points(plan: ScanPlan, turns: list[Turn], speed_deg_s: float) -> list[Point]:
+    """The sweep's planned points: one per waveform the laser gives while a turn runs at
+    speed_deg_s (where they are expected; the stored ones are placed by the counts)."""
+    per = max(int(round(360.0 / speed_deg_s * plan.laser_hz / plan.average)), 1)
+    pts: list[Point] = []
+    for t in turns:
+        for c in range(per):
+            f = c / per
+            pts.append(Point(len(pts), t.x, t.y, t.z0 + f * (t.z1 - t.z0),
+                             t.a0 + f * (t.a1 - t.a0), t.index, c, 0, line=t.index))
+    return pts
+
+
+def sweep_feed_mm_min(turn: Turn, speed_deg_s: float) -> float:
+    """G1's F (mm/min) for a turn at speed_deg_s: Marlin's F is the linear axes' speed
+    when any moves (Z's climb over the turn's time), else the table's in deg/min."""
+    t = abs(turn.a1 - turn.a0) / speed_deg_s
+    dz = abs(turn.z1 - turn.z0)
+    return max(dz / t * 60.0, 1.0) if dz > 0 else speed_deg_s * 60.0

@@ -12,6 +12,7 @@ import numpy as np
 from ..report.page import Section
 from ..scan.plan import modality_for
 from .session import TITLES, Demo
+from .sweeps import span_duty, sweep_scans
 
 # one object per material of the household set (emulator time: every object of it at every
 # level would take hours); the quick demo takes the first
@@ -138,9 +139,11 @@ def stage_models(d: Demo) -> Section:
                 str(d.out / "calibration.toml"), "--ranging", str(d.out / "ranging.json"),
                 "--classifier", str(clf), "--yes", "--json", ok=(0, 1))
     rows = json.loads(out.splitlines()[-1])["objects"]
+    bands = {r["object_id"]: load_plan_levels(toml, r["object_id"]) for r in rows}
+    sweeps = sweep_scans(d, tuple(bands), bands)
     s = d.sim.scene
     v, n = s.v / np.linalg.norm(s.v), s.n / np.linalg.norm(s.n)
-    table, missing, cover, worse = [], [], [], []
+    table, missing, cover, worse, idle = [], [], [], [], []
     for r in rows:
         name = r["object_id"]
         try:
@@ -154,12 +157,19 @@ def stage_models(d: Demo) -> Section:
         j = judge(model, truths, band)
         j["z_rms_own"] = own_part_z(db, name, truths, band)
         files = {**_fixed_scans(d, name), "auto": str(db / "scans" / f"{r['scan_id']}.h5")}
+        if name in sweeps:
+            files["sweep"] = sweeps[name]["file"]
         cov = band_coverage(truths, v, n, files, band, 45.0)
-        for mode in ("step", "fly", "auto"):
+        duty = {mode: span_duty(f) for mode, f in files.items()}
+        for mode in ("step", "fly", "auto", "sweep"):
             if mode in cov:
-                cover.append([name, mode, _pct(cov[mode]["oa"]), _pct(cov[mode]["us"])])
+                cover.append([name, mode, _pct(cov[mode]["oa"]), _pct(cov[mode]["us"]),
+                              _pct(duty[mode])])
+        if "sweep" in duty and not (duty["sweep"] or 0) >= 0.5:
+            idle.append(f"{name} ({_pct(duty['sweep'])} %)")
         best = max(cov["auto"].values())
-        fixed = max((c for k, m in cov.items() if k != "auto" for c in m.values()), default=0)
+        fixed = max((c for k, m in cov.items() if k in ("step", "fly") for c in m.values()),
+                    default=0)
         if not best > fixed:
             worse.append(f"{name} (auto {100 * best:.0f} % vs fixed {100 * fixed:.0f} %)")
         verdict = r.get("verdict") or {}
@@ -172,7 +182,7 @@ def stage_models(d: Demo) -> Section:
                       + (f" ({'right' if verdict.get('right') else 'WRONG'})" if verdict else ""),
                       f"{r.get('total_s', 0):.0f}"])
         sec.values[name] = {"campaign": r, "truth": j, "band_mm": band,
-                            "coverage_truth": cov}
+                            "coverage_truth": cov, "laser_duty_span": duty}
         sec.views.append(model_section(
             f"{name} ({r.get('material', '')}): model v{model.version}", model.vertices_mm,
             model.faces, model.sigma_mm, model.support, model.supported, list(model.classes),
@@ -192,8 +202,17 @@ def stage_models(d: Demo) -> Section:
                "supported vertices", "e mean (mm)", "e p95 (mm)", "RMS e/sigma",
                "RMS e/sigma, calibration apart", "vertex material right",
                "classifier's verdict", "time (s)"], table)
-    sec.table(["object", "scan", "OA coverage % (band)", "US coverage % (band)"], cover)
+    sec.check("sweeps keep the laser busy:", "; ".join(idle) if idle else
+              "yes, every object (at least 50 % of the shots fired from its first waveform to "
+              "its last in a stored waveform)", "issue 32's laser duty target (50 %)", not idle)
+    sec.table(["object", "scan", "OA coverage % (band)", "US coverage % (band)",
+               "laser duty % (first to last waveform)"], cover)
     sec.text.append(
+        f"Each object is also swept over the same band (`dmdsm scan --mode sweep`, into "
+        f"{d.out / 'db_sweep'}: the table turning under the sensor while it climbs, 2 mm a "
+        f"turn). The laser duty is the share of the shots fired from a scan's first waveform "
+        f"to its last that went into a stored waveform; `python bench/scan_coverage.py` "
+        f"gives it from the scan's start, approach included. "
         f"`dmdsm campaign {toml}` ({len(names)} object{'s' if len(names) > 1 else ''}, "
         f"one per material, each over {LEVELS_QUICK if d.quick else LEVELS} levels 2 mm "
         f"apart about half its height: the emulator's time), into {db}; the classifier is "
@@ -213,6 +232,15 @@ def stage_models(d: Demo) -> Section:
         f"`dmdsm model show OBJECT --db {db} "
         f"--html FILE`, `dmdsm model export OBJECT --db {db} -o FILE.glb`.")
     return sec
+
+
+def load_plan_levels(toml: Path, name: str) -> list[float]:
+    """The levels (mm) the campaign file gives an object."""
+    import tomllib
+
+    doc = tomllib.loads(Path(toml).read_text())
+    return [float(x) for o in doc.get("object", []) if o.get("id") == name
+            for x in o.get("levels_mm", [])]
 
 
 def _truth(obj: object) -> object:

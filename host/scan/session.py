@@ -29,7 +29,7 @@ from .auto_executor import outline_coverage, run_auto_scan
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan
-from .first_look import first_look_plan, first_look_points
+from .first_look import cylinder_window, first_look_plan, first_look_points
 from .fly_executor import fly_lines, line_ends, run_fly_scan
 from .plan import (
     AUTO_SPACING_MM,
@@ -242,8 +242,13 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
         elif plan.mode == "sweep":
+            t = turns[0]
+            near, far = cylinder_window(np.array([[t.x, t.y, t.z0]]), v, n, X_R,
+                                        plan.radius_mm, plan.height_mm)
+            window = (float(near[0]), float(far[0])) if np.isfinite([near[0], far[0]]).all() \
+                else None
             run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,
-                                       ranger, machine, progress)
+                                       ranger, machine, progress, window)
         else:
             run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
         stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)

@@ -41,9 +41,13 @@ class SweepRun:
 
     def __init__(self, stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                  n_planned: int, writer: ScanWriter, ranger: PointRanger,
-                 machine: MachineLimits, progress: Progress | None = None) -> None:
-        """Syncs the sensor's clock (16 exchanges); nothing moves until run()."""
+                 machine: MachineLimits, progress: Progress | None = None,
+                 window_mm: tuple[float, float] | None = None) -> None:
+        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). window_mm:
+        (near, far) beam distances where the beam crosses the bounding cylinder (the ranger
+        reads a lone pulse by it)."""
         self.stage, self.sensor, self.plan, self.turns = stage, sensor, plan, turns
+        self.window = window_mm
         self.n_planned, self.writer, self.ranger, self.machine = n_planned, writer, ranger, \
             machine
         self.progress = progress
@@ -231,7 +235,8 @@ class SweepRun:
                 continue  # a turn with no waveform placed on it: nothing to store
             t = dict(timing or dict.fromkeys(PHASES, 0.0))
             t2 = time.monotonic()
-            values = _range(rows, turn, self.ranger, 1, self.unix_minus_monotonic, self.plan)
+            values = _range(rows, turn, self.ranger, 1, self.unix_minus_monotonic, self.plan,
+                            self.window)
             t["ranging"] = time.monotonic() - t2
             values["phase_time_s"] = np.tile([t[k] / n for k in PHASES], (n, 1))
             self.stats.store(lambda r=rows, v=values: self.writer.append_many(r["samples"], **v),
@@ -241,15 +246,18 @@ class SweepRun:
 
 
 def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
-           unix_minus_monotonic: float, plan: ScanPlan) -> dict:
+           unix_minus_monotonic: float, plan: ScanPlan,
+           window: tuple[float, float] | None = None) -> dict:
     """Distances and the file's per-row values of a kept turn; a lone pulse continues the
-    surface of the waveform before it (the object turns under the beam, never jumps)."""
+    surface of the waveform before it (the object turns under the beam, never jumps), or
+    is read by the window where the beam crosses the bounding cylinder (the first look's
+    rule, host/scan/first_look.py)."""
     n = len(rows["z"])
     out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
                                             "snr_us_db")}
     previous = None
     for i in range(n):
-        r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous, None)
+        r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous, window)
         previous = surface(r)
         for m in ("oa", "us"):
             d, snr = r.get(m, (np.nan, 0.0))
@@ -272,8 +280,10 @@ def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
 
 def run_sweep_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                    n_planned: int, writer: ScanWriter, ranger: PointRanger,
-                   machine: MachineLimits, progress: Progress | None = None) -> ScanStats:
+                   machine: MachineLimits, progress: Progress | None = None,
+                   window_mm: tuple[float, float] | None = None) -> ScanStats:
     """Measure the turns after the last one in the file; returns what this run did
-    (progress: points in the file, n_planned, phase times s, after each stored turn)."""
+    (progress: points in the file, n_planned, phase times s, after each stored turn;
+    window_mm: where the beam crosses the bounding cylinder, for lone pulses)."""
     return SweepRun(stage, sensor, plan, turns, n_planned, writer, ranger, machine,
-                    progress).run()
+                    progress, window_mm).run()

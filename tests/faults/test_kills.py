@@ -34,12 +34,12 @@ def command(name, emu, out):
         return ["calibrate-range", "--sensor", emu.sensor, "--stage", emu.stage, "-x", "235",
                 "-y", "266", "-z", "20", "--start-distance", "7.24", "--lateral", "3",
                 "-o", str(out / "ranging.json")]
-    if name.startswith("scan"):  # "scan-auto": the same plan in auto mode
+    if name.startswith("scan"):  # "scan-auto", "scan-sweep": the same plan in that mode
         return ["scan", "--sensor", emu.sensor, "--stage", emu.stage, "--calibration",
                 str(out.parent / "in" / "cal.toml"), "--ranging",
                 str(out.parent / "in" / "ranging.json"), "--plan",
                 str(out.parent / "in" / "plan.toml"), "--db", str(out / "db"),
-                "--scan-id", "cut", *(["--mode", "auto"] if name == "scan-auto" else [])]
+                "--scan-id", "cut", *(["--mode", name[5:]] if name != "scan" else [])]
     return ["stage", "move", "--stage", emu.stage, "-y", "100", "--feed", "300"]
 
 
@@ -96,7 +96,7 @@ def settled(stage_port, wait_s=0.6):
 
 @pytest.mark.parametrize("sig", list(SIGNALS))
 @pytest.mark.parametrize("name", ["acquire", "calibrate-range", "stage-move", "scan",
-                                  "scan-auto"])
+                                  "scan-auto", "scan-sweep"])
 def test_a_long_command_killed_at_a_random_moment(emulator, tmp_path, name, sig):
     rng = np.random.default_rng(zlib.crc32(f"{name} {sig}".encode()))
     delay_s = float(rng.uniform(1.5, 4.0))  # printed by pytest on failure

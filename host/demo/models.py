@@ -12,7 +12,7 @@ import numpy as np
 from ..report.page import Section
 from ..scan.plan import modality_for
 from .session import TITLES, Demo
-from .sweeps import span_duty, sweep_scans
+from .sweeps import met_band, span_duty, sweep_scans
 
 # one object per material of the household set (emulator time: every object of it at every
 # level would take hours); the quick demo takes the first
@@ -143,7 +143,7 @@ def stage_models(d: Demo) -> Section:
     sweeps = sweep_scans(d, tuple(bands), bands)
     s = d.sim.scene
     v, n = s.v / np.linalg.norm(s.v), s.n / np.linalg.norm(s.n)
-    table, missing, cover, worse, idle = [], [], [], [], []
+    table, missing, cover, worse, idle, swept = [], [], [], [], [], []
     for r in rows:
         name = r["object_id"]
         try:
@@ -157,16 +157,28 @@ def stage_models(d: Demo) -> Section:
         j = judge(model, truths, band)
         j["z_rms_own"] = own_part_z(db, name, truths, band)
         files = {**_fixed_scans(d, name), "auto": str(db / "scans" / f"{r['scan_id']}.h5")}
-        if name in sweeps:
-            files["sweep"] = sweeps[name]["file"]
         cov = band_coverage(truths, v, n, files, band, 45.0)
         duty = {mode: span_duty(f) for mode, f in files.items()}
-        for mode in ("step", "fly", "auto", "sweep"):
+        for mode in ("step", "fly", "auto"):
             if mode in cov:
                 cover.append([name, mode, _pct(cov[mode]["oa"]), _pct(cov[mode]["us"]),
                               _pct(duty[mode])])
-        if "sweep" in duty and not (duty["sweep"] or 0) >= 0.5:
-            idle.append(f"{name} ({_pct(duty['sweep'])} %)")
+        # the sweep over the auto scan's follow levels and the auto scan, side by side, in
+        # the band the sweep's beam met (the beam falls a little: below the sensor's Z)
+        lv = bands[name]
+        levels_band = (min(lv) - SPACING_MM / 2, max(lv) + SPACING_MM / 2)
+        both = {"auto": files["auto"]}
+        if name in sweeps:
+            both["sweep"] = sweeps[name]["file"]
+            duty["sweep"] = span_duty(both["sweep"])
+            levels_band = met_band(both["sweep"]) or levels_band
+        cov_levels = band_coverage(truths, v, n, both, levels_band, 45.0)
+        for mode in both:
+            swept.append([name, mode, f"{levels_band[0]:.1f}-{levels_band[1]:.1f}",
+                          _pct(cov_levels[mode]["oa"]), _pct(cov_levels[mode]["us"]),
+                          _pct(duty[mode])])
+        if not (duty.get("sweep") or 0) >= 0.5:
+            idle.append(f"{name} ({_pct(duty.get('sweep'))} %)")
         best = max(cov["auto"].values())
         fixed = max((c for k, m in cov.items() if k in ("step", "fly") for c in m.values()),
                     default=0)
@@ -182,7 +194,8 @@ def stage_models(d: Demo) -> Section:
                       + (f" ({'right' if verdict.get('right') else 'WRONG'})" if verdict else ""),
                       f"{r.get('total_s', 0):.0f}"])
         sec.values[name] = {"campaign": r, "truth": j, "band_mm": band,
-                            "coverage_truth": cov, "laser_duty_span": duty}
+                            "coverage_truth": cov, "laser_duty_span": duty,
+                            "levels_band_mm": levels_band, "coverage_levels": cov_levels}
         sec.views.append(model_section(
             f"{name} ({r.get('material', '')}): model v{model.version}", model.vertices_mm,
             model.faces, model.sigma_mm, model.support, model.supported, list(model.classes),
@@ -207,12 +220,16 @@ def stage_models(d: Demo) -> Section:
               "its last in a stored waveform)", "issue 32's laser duty target (50 %)", not idle)
     sec.table(["object", "scan", "OA coverage % (band)", "US coverage % (band)",
                "laser duty % (first to last waveform)"], cover)
+    sec.table(["object", "scan", "z band (mm): where the sweep's beam met it", "OA coverage %",
+               "US coverage %", "laser duty % (first to last waveform)"], swept)
     sec.text.append(
-        f"Each object is also swept over the same band (`dmdsm scan --mode sweep`, into "
-        f"{d.out / 'db_sweep'}: the table turning under the sensor while it climbs, 2 mm a "
-        f"turn). The laser duty is the share of the shots fired from a scan's first waveform "
-        f"to its last that went into a stored waveform; `python bench/scan_coverage.py` "
-        f"gives it from the scan's start, approach included. "
+        f"Each object is also swept over the campaign's levels (`dmdsm scan --mode sweep`, "
+        f"into {d.out / 'db_sweep'}: the table turning under the sensor while it climbs, 2 mm "
+        f"a turn); the second coverage table compares it with the auto scan in that band "
+        f"(the first is over the whole band the auto scan's model spans, its first look's "
+        f"included). The laser duty is the share of the shots fired from a scan's first "
+        f"waveform to its last that went into a stored waveform; `python "
+        f"bench/scan_coverage.py` gives it from the scan's start, approach included. "
         f"`dmdsm campaign {toml}` ({len(names)} object{'s' if len(names) > 1 else ''}, "
         f"one per material, each over {LEVELS_QUICK if d.quick else LEVELS} levels 2 mm "
         f"apart about half its height: the emulator's time), into {db}; the classifier is "

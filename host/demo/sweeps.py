@@ -54,3 +54,16 @@ def span_duty(path: str | Path, laser_hz: float = 1000.0) -> float | None:
     tick_hz = float(scan.sensor["tick_hz"])
     span_s = (ts[-1] - ts[0]) / tick_hz + float(p["n_average"][-1]) / laser_hz
     return float(np.sum(p["n_average"]) / laser_hz / span_s)
+
+
+def met_band(path: str | Path, margin_mm: float = 1.0) -> tuple[float, float] | None:
+    """The heights (mm, object frame) a scan's points span, widened by margin_mm: where its
+    beam met the object (None without a point)."""
+    from ..scan.points import scan_points
+    from ..scan.scanfile import read_scan
+
+    pts = scan_points(read_scan(Path(path), waveforms=False))
+    z = np.concatenate([pts[m]["P"][:, 2] for m in ("oa", "us")])
+    if not len(z):
+        return None
+    return float(z.min()) - margin_mm, float(z.max()) + margin_mm

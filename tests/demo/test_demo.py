@@ -72,7 +72,8 @@ def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
         # the same band swept: the laser busy from its first waveform to its last, and the
         # surface covered in it
         assert m["laser_duty_span"]["sweep"] >= 0.5, (name, m["laser_duty_span"])
-        assert max(m["coverage_truth"]["sweep"].values()) > 0.5, (name, m["coverage_truth"])
+        # (2026-12-06: 0.56-0.68 on the boxes, 0.90-0.93 on the round ones)
+        assert max(m["coverage_levels"]["sweep"].values()) > 0.4, (name, m["coverage_levels"])
     assert r.returncode == 0 and all(s["ok"] for s in st.values()), r.stdout[-2000:]
     html = (out / "report.html").read_text()
     # Fig. 2, Fig. 3, seven Fig. 4s, three Fig. 5s

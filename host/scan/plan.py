@@ -155,8 +155,6 @@ class ScanPlan:
         if self.mode == "sweep":  # as sweep.sweep_points
             from dmdsm.marlin_patch import load_machine
 
-            from .sweep import table_speed_deg_s
-
             m = load_machine()
             span = max(self.levels_mm) - min(self.levels_mm)
             turns = max(math.ceil(span / self.step_mm - 1e-9), 1)
@@ -197,6 +195,13 @@ class ScanPlan:
         margin (at least 0.5) to the far side of the bounding cylinder plus the margin."""
         return (max(self.standoff_mm - self.depth_margin_mm, 0.5),
                 self.standoff_mm + 2 * self.radius_mm + self.depth_margin_mm)
+
+
+def table_speed_deg_s(plan: ScanPlan, a_max_deg_s: float) -> float:
+    """The table's speed (deg/s) in a sweep: consecutive waveforms step_mm apart on the
+    bounding cylinder, at most the table's maximum feed rate (deg/s)."""
+    w = math.degrees(plan.step_mm / plan.radius_mm * plan.laser_hz / plan.average)
+    return min(w, a_max_deg_s)
 
 
 AUTO_SPACING_MM = 2.0  # an auto plan's levels apart (the coverage target's spacing)

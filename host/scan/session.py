@@ -40,9 +40,10 @@ from .plan import (
     expand,
     keep_outs,
     point_ranger,
+    table_speed_deg_s,
 )
 from .scanfile import ScanFileError, ScanWriter, read_scan
-from .sweep import Turn, sweep_points, sweep_turns, table_speed_deg_s
+from .sweep import Turn, sweep_points, sweep_turns
 from .sweep_executor import run_sweep_scan
 
 

@@ -105,13 +105,6 @@ class Turn:
                 abs(round(self.a1 * spu[3]) - round(self.a0 * spu[3])))
 
 
-def table_speed_deg_s(plan: ScanPlan, a_max_deg_s: float) -> float:
-    """The table's speed (deg/s) in a sweep: consecutive waveforms step_mm apart on the
-    bounding cylinder, at most the table's maximum feed rate."""
-    w = math.degrees(plan.step_mm / plan.radius_mm * plan.laser_hz / plan.average)
-    return min(w, a_max_deg_s)
-
-
 def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Turn]:
     """The sweep's turns: the sensor standoff_mm outside the bounding cylinder, its beam
     through the table axis; Z from the lowest level to the highest, step_mm a turn (one flat

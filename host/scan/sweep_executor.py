@@ -26,9 +26,9 @@ from ..links.transport import LinkError
 from ..ranging.point import PointRanger, surface
 from .common import Progress, ScanStats, approach
 from .fly_executor import SYNC_WAIT_S, FlyScanError, straddles
-from .plan import ScanPlan
+from .plan import ScanPlan, table_speed_deg_s
 from .scanfile import PHASES, ScanWriter
-from .sweep import Turn, counted_steps, sweep_feed_mm_min, table_speed_deg_s
+from .sweep import Turn, counted_steps, sweep_feed_mm_min
 
 SYNC_A = SPEC.enums["sync_input"]["a"]  # the table's STEP line's motion-sync input
 STALL_S = 3.0  # no table step counted for this long (s, device clock): the sweep stops

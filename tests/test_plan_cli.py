@@ -37,6 +37,18 @@ def test_plan_new_writes_a_plan_scan_reads(tmp_path):
     assert shown.returncode == 0 and "36 points" in shown.stdout
 
 
+def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_path):
+    r = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "sweep",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "the table turning while Z climbs 4.5 to 92.5 mm, 2 mm a turn" in r.stdout
+    plan = load_plan(tmp_path / "mug.toml")
+    assert plan.mode == "sweep" and f"{plan.n_points()} points" in r.stdout
+    a = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "auto", "-o",
+            "a.toml", cwd=tmp_path)
+    assert a.returncode == 0 and "levels [4.5, 6.5, 8.5," in a.stdout and "np." not in a.stdout
+
+
 def test_plan_new_scans_a_one_modality_material_in_its_modality(tmp_path):
     """Steel and glass give no OA pulse, foam no US echo: a plan of them in "both" would hear
     lone pulses it cannot read and see nothing (tests/e2e/test_auto_one_modality.py), so
@@ -80,12 +92,12 @@ def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
 
 @settings(max_examples=60, deadline=None)
 @given(w=st.floats(1, 250), d=st.floats(1, 250), h=st.floats(5, 400), round_=st.booleans(),
-       mode=st.sampled_from(["step", "fly", "auto"]))
+       mode=st.sampled_from(["step", "fly", "auto", "sweep"]))
 def test_a_plan_for_any_size_that_fits_the_scanner_loads_back_the_same(w, d, h, round_, mode):
     plan = plan_for_size("obj", (w, d, h), round_, "paper", mode)
     doc = tomllib.loads(plan.to_toml())
     assert doc["object"]["radius_mm"] >= max(w, d) / 2 and doc["scan"]["levels_mm"][0] <= h
-    if mode == "auto":  # every 2 mm over the height, clear of the turntable's keep-out
+    if mode in ("auto", "sweep"):  # every 2 mm over the height, clear of the turntable
         lv = doc["scan"]["levels_mm"]
         assert lv[0] >= 4.5 and np.allclose(np.diff(lv), 2.0) and lv[-1] > h - 3.0
     assert plan.hash() == plan_for_size("obj", (w, d, h), round_, "paper", mode).hash()

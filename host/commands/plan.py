@@ -88,6 +88,14 @@ def _say(args: argparse.Namespace, plan: object, head: str, path: Path) -> None:
 
 
 def _summary(plan: object) -> str:
-    return (f"{plan.object_id} ({plan.material or 'no material'}), {plan.mode}, "
-            f"{plan.n_points()} points: levels {plan.levels_mm} mm, angles {plan.angles_deg} "
-            f"deg, x ±{plan.half_width_mm:g} mm every {plan.step_mm:g} mm")
+    head = f"{plan.object_id} ({plan.material or 'no material'}), {plan.mode}, " \
+        f"{plan.n_points()} points: "
+    if plan.mode == "sweep":
+        lo, hi = min(plan.levels_mm), max(plan.levels_mm)
+        return (head + f"the table turning while Z climbs {lo:g} to {hi:g} mm, "
+                f"{plan.step_mm:g} mm a turn, {plan.standoff_mm:g} mm outside a "
+                f"{plan.radius_mm:g} mm cylinder")
+    levels = ", ".join(f"{x:g}" for x in plan.levels_mm)
+    angles = ", ".join(f"{x:g}" for x in plan.angles_deg)
+    return (head + f"levels [{levels}] mm, angles [{angles}] deg, x ±{plan.half_width_mm:g} "
+            f"mm every {plan.step_mm:g} mm")

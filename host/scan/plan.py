@@ -252,7 +252,7 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                             f"the object's width or depth ({max(w, d) / 2:g} mm): measure "
                             f"from the axis to the object's farthest point")
         radius = reach
-    mm = lambda x: round(x, 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
+    mm = lambda x: round(float(x), 1)  # noqa: E731 (a plan gives sizes to 0.1 mm)
     levels = [mm(min(0.5 * h, 40.0))]
     if mode in ("auto", "sweep"):  # every 2 mm over the height (the coverage spacing)
         levels = [mm(z) for z in np.arange(AUTO_LOWEST_MM, h - 0.5, AUTO_SPACING_MM)] or [

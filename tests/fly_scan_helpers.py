@@ -1,7 +1,11 @@
 """Shared by the fly-scan tests (tests/e2e, and tests/stage against the stage under test):
 the ranging calibration and plan on the emulator's block, every shot's true pose, the CLI."""
 
+import os
+import signal
+import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -9,6 +13,7 @@ from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.ranging.procedure import calibrate_range
 from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.host.scan.session import run_plan
 from dmdsm.sim.boards.sensor.core_board import TICK_HZ
 
@@ -87,3 +92,37 @@ def scan_in_process(emu, sensor, plan, cal, text, ranging, tmp_path):
                             setup=ranging, db=tmp_path / "db", home=False)
     finally:
         sensor.close()
+
+
+def pose_errors(points, shots):
+    """(n, 4) each stored waveform's X, Y, Z (mm) and table angle (deg) minus the mean of
+    its shots' true pose (record_poses), in the file's order."""
+    sh = np.array(shots)
+    sh = sh[np.argsort(sh[:, 0], kind="stable")]
+    err = []
+    for t, k, S, th in zip(points["timestamp"], points["n_average"],
+                           points["stage_position_mm"], points["theta_deg"]):
+        i = np.searchsorted(sh[:, 0], t)
+        err.append([*(S - sh[i:i + k, 1:4].mean(axis=0)), th - sh[i:i + k, 4].mean()])
+    return np.array(err)
+
+
+def ctrl_c_after(cmd, path, lines_more_than):
+    """Run the scan command `cmd`, send it Ctrl-C once its file `path` holds more than
+    lines_more_than lines (point indices), and return its stderr (the exit asserted 130)."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 600
+
+    def lines():
+        try:
+            return len(set(read_scan(path, waveforms=False).points["point_index"].tolist()))
+        except Exception:
+            return 0
+
+    while lines() <= lines_more_than and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "run the same command to continue" in err, err
+    return err

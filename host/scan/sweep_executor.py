@@ -163,14 +163,11 @@ class SweepRun:
                     self._resync()  # a turn is done: the clock line over a longer baseline
                 while next_turn < len(todo) and (done_to >= (next_turn + 1) * n or
                                                  (made == total and not waves)):
-                    mine = [w for c, w in placed if next_turn * n < c <= (next_turn + 1) * n
-                            or (next_turn == 0 and c == 0)]
-                    steps = [c - next_turn * n for c, w in placed
-                             if next_turn * n < c <= (next_turn + 1) * n
-                             or (next_turn == 0 and c == 0)]
-                    placed = [(c, w) for c, w in placed if c > (next_turn + 1) * n]
-                    self.finished.append((todo[next_turn],
-                                          self._rows(todo[next_turn], mine, steps, n)))
+                    end = (next_turn + 1) * n  # placed holds no step count <= the turn's start
+                    mine = [(c - next_turn * n, w) for c, w in placed if c <= end]
+                    placed = [(c, w) for c, w in placed if c > end]
+                    self.finished.append((todo[next_turn], self._rows(
+                        todo[next_turn], [w for _, w in mine], [c for c, _ in mine], n)))
                     next_turn += 1
                 timing = dict.fromkeys(PHASES, 0.0)
                 timing["acquire"] = time.monotonic() - t0

@@ -3,13 +3,17 @@ Y; every waveform placed where its shots were (the emulator's truth), the sensor
 true object's keep-out, the points on the true surface, and Ctrl-C then the same command
 resuming the follow lines where they stopped."""
 
-import os
-import signal
 import subprocess
-import time
 
 import numpy as np
-from fly_scan_helpers import record_poses, scan_cmd, scan_in_process, setup
+from fly_scan_helpers import (
+    ctrl_c_after,
+    pose_errors,
+    record_poses,
+    scan_cmd,
+    scan_in_process,
+    setup,
+)
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.scan.first_look import first_look_plan
@@ -48,11 +52,7 @@ def test_an_auto_scan_follows_the_outline_places_every_shot_and_keeps_clear(emul
     # each waveform where the mean of its shots' true positions was (the stage's 2 um
     # scatter aside): counted X on the path gives Y too
     sh = np.array(shots)
-    err = []
-    for t, k, S in zip(p["timestamp"], p["n_average"], p["stage_position_mm"]):
-        i = np.searchsorted(sh[:, 0], t)
-        err.append(S - sh[i:i + k, 1:4].mean(axis=0))
-    err = np.abs(np.array(err))
+    err = np.abs(pose_errors(p, shots)[:, :3])
     assert err[follow].max() < 0.015 and err[~follow].max() < 0.015, err.max(axis=0)
     # the sensor never came within the keep-out margin (2 mm) of the true block
     truth = emu.sim.truth_objects()[0]
@@ -82,22 +82,7 @@ def test_ctrl_c_in_the_follow_lines_and_the_same_command_resumes_them(emulator, 
     (tmp_path / "plan.toml").write_text(plan.to_toml())
     path = tmp_path / "db" / "scans" / "cut.h5"
     n_look = len(first_look_plan(plan).levels_mm) * 8
-    proc = subprocess.Popen(scan_cmd(emu, tmp_path, "cut", "--json"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 600
-
-    def lines():
-        try:
-            return len(set(read_scan(path, waveforms=False).points["point_index"].tolist()))
-        except Exception:
-            return 0
-
-    while lines() <= n_look and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130 and "run the same command to continue" in err, err
+    ctrl_c_after(scan_cmd(emu, tmp_path, "cut", "--json"), path, n_look)
     cut = read_scan(path, waveforms=False)
     done_lines = sorted(set(cut.points["point_index"].tolist()))
     assert done_lines == list(range(len(done_lines))) and len(done_lines) > n_look

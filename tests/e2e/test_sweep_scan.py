@@ -5,13 +5,17 @@ the object; Ctrl-C then the same command resuming after the last turn stored; a 
 STEP line is not wired is named in one line."""
 
 import json
-import os
-import signal
 import subprocess
-import time
 
 import numpy as np
-from fly_scan_helpers import record_poses, scan_cmd, scan_in_process, setup
+from fly_scan_helpers import (
+    ctrl_c_after,
+    pose_errors,
+    record_poses,
+    scan_cmd,
+    scan_in_process,
+    setup,
+)
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.scan.coverage import laser_duty
@@ -45,13 +49,7 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     # scatter and a Z step, the table within one of its steps (0.1125 deg) and its 0.01 deg
     # angle scatter
     sh = np.array(shots)
-    sh = sh[np.argsort(sh[:, 0], kind="stable")]
-    err = []
-    for t, k, S, th in zip(p["timestamp"], p["n_average"], p["stage_position_mm"],
-                           p["theta_deg"]):
-        i = np.searchsorted(sh[:, 0], t)
-        err.append([*(S - sh[i:i + k, 1:4].mean(axis=0)), th - sh[i:i + k, 4].mean()])
-    err = np.abs(np.array(err))
+    err = np.abs(pose_errors(p, shots))
     assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
     # the laser busy: the waveforms stored from the first to the last turn's cover their
     # span but for the reversals (one per turn)
@@ -80,22 +78,7 @@ def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emula
     plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, "levels_mm": [14.0, 22.0]})
     (tmp_path / "plan.toml").write_text(plan.to_toml())
     path = tmp_path / "db" / "scans" / "cut.h5"
-    proc = subprocess.Popen(scan_cmd(emu, tmp_path, "cut", "--json"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 600
-
-    def turns():
-        try:
-            return len(set(read_scan(path, waveforms=False).points["point_index"].tolist()))
-        except Exception:
-            return 0
-
-    while turns() < 1 and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130 and "run the same command to continue" in err, err
+    ctrl_c_after(scan_cmd(emu, tmp_path, "cut", "--json"), path, 0)
     cut = read_scan(path, waveforms=False)
     assert cut.entry["status"] == "interrupted"
     done = sorted(set(cut.points["point_index"].tolist()))

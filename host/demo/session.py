@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TextIO
 
 import numpy as np
+from scipy.stats import binomtest
 
 from ..commands.campaign import mount
 from ..commands.errors import Terminated
@@ -173,10 +174,14 @@ def stage_ranging(d: Demo) -> Section:
     at = [f"{c:g}" for c in RANGING_AT_MM]  # as the README and `dmdsm sim --positions`
     d.run("stage", "move", "-x", at[0], "-y", at[1], "-z", at[2], *d.ports[2:])
     start = d.sim.truth()["distance_mm"]  # a gauge block would give this on the machine
+    # the quick demo too calibrates on 105 spots (4 s more): the surface scatter every point's
+    # std includes is this fit's residual, and from 24 spots of the OA's heavy-tailed
+    # scatter it came out 64-123 um on seeds with ~90 um true, so the block's RMS e / std
+    # ran 0.5-1.6
     rep = json.loads(d.run("calibrate-range", *d.ports, "--at", *at,
                            "--start-distance", f"{start:.4f}", "--steps",
-                           "8" if d.quick else "21", "--step-mm", "1", "--shots", "2",
-                           "--lateral", "3" if d.quick else "5", "--fixed-c",
+                           "21", "--step-mm", "1", "--shots", "2", "--lateral", "5",
+                           "--fixed-c",
                            "-o", str(d.out / "ranging.json"), "--json"))
     t = d.sim.truth()
     setup = json.loads((d.out / "ranging.json").read_text())["modalities"]
@@ -332,6 +337,7 @@ PAPER_FIG5 = {"aluminium": 1.0, "apple": 0.790, "foam": 1.0, "glass": 1.0, "pape
               "plastic": 0.985, "steel": 1.0}
 FIG5_MARGIN = 0.15  # random splits: each material at least its Fig. 5 figure less 15 points
 LOO_FLOOR = 0.5     # leave one object out (no paper figure): each material tested >= 50 %
+CHANCE_P = 0.05     # a material short of its figure passes if chance does as badly this often
 BOSS_LOO_REASON = ("not run: `dmdsm classify evaluate --db DB --classifiers boss` runs it "
                    "(one BOSS fit per object)")
 
@@ -352,27 +358,48 @@ def _cell(acc: float | None, count: tuple[int, int] | None, untested: str) -> st
     return f"{acc:.1%}" + (f" ({count[0]}/{count[1]})" if count else "")
 
 
-def classify_checks(sec: Section, name: str, r: dict, label: str) -> None:
+def short_by_chance(correct: int, tested: int, want: float) -> bool:
+    """True if `correct` of `tested` windows is below the accuracy `want` by no more than
+    chance: a classifier that is right with probability `want` does as badly or worse at
+    least CHANCE_P of the time (one-sided exact binomial test). 5 of 6 is no evidence
+    against 85 %; 290 of 360 (80.6 %) is."""
+    return tested > 0 and bool(binomtest(correct, tested, want, alternative="less").pvalue
+                               >= CHANCE_P)
+
+
+def classify_checks(sec: Section, name: str, r: dict, label: str,
+                    counts: dict[str, tuple[int, int]] | None = None,
+                    loo_counts: dict[str, tuple[int, int]] | None = None) -> None:
     """Stage 5's criteria for one classifier's results r ({"random": {...}, "loo": {...}}):
-    each material's accuracy over random splits at least its Fig. 5 figure less FIG5_MARGIN
-    (a material never tested misses); over leave one object out (when run) at least
-    LOO_FLOOR for each material tested (one with no other object of it cannot be)."""
+    each material's accuracy over random splits at least its Fig. 5 figure less FIG5_MARGIN,
+    or below it by no more than chance over the windows it was tested on (counts: material ->
+    (correct, tested), from the confusion matrix; the quick demo tests 4-8 windows a material,
+    where one window is 12-25 points); a material never tested misses; over leave one object
+    out (when run) at least LOO_FLOOR, or below it by no more than chance (loo_counts), for
+    each material tested (one with no other object of it cannot be)."""
     miss = []
+    counts = counts or {}
     for c, a in r["random"].items():
         want = PAPER_FIG5.get(c, max(PAPER_FIG5.values())) - FIG5_MARGIN
-        if a is None or not np.isfinite(a) or a < want:
-            miss.append(f"{c} " + (f"{a:.1%} < {want:.1%}" if a is not None and np.isfinite(a)
-                                   else "untested"))
+        if a is None or not np.isfinite(a):
+            miss.append(f"{c} untested")
+        elif a < want and not (c in counts and short_by_chance(*counts[c], want)):
+            miss.append(f"{c} {a:.1%} < {want:.1%}"
+                        + (f" ({counts[c][0]}/{counts[c][1]})" if c in counts else ""))
     sec.check(f"{name}, {label}:", "; ".join(miss) if miss else "every material",
               f"each material >= its Fig. 5 figure less {FIG5_MARGIN * 100:.0f} points "
               f"(>= {min(PAPER_FIG5.values()) - FIG5_MARGIN:.0%} apple, "
-              f">= {1 - FIG5_MARGIN:.0%} the others)", not miss)
+              f">= {1 - FIG5_MARGIN:.0%} the others), or short of it by no more than chance "
+              f"over its tested windows (one-sided binomial p >= {CHANCE_P:g})", not miss)
     if "loo" in r:
-        low = [f"{c} {a:.1%}" for c, a in r["loo"].items()
-               if a is not None and np.isfinite(a) and a < LOO_FLOOR]
+        loo = loo_counts or {}
+        low = [f"{c} {a:.1%}" + (f" ({loo[c][0]}/{loo[c][1]})" if c in loo else "")
+               for c, a in r["loo"].items() if a is not None and np.isfinite(a)
+               and a < LOO_FLOOR and not (c in loo and short_by_chance(*loo[c], LOO_FLOOR))]
         sec.check(f"{name}, leave one object out:", "; ".join(low) if low else
                   "every material tested", f"each material tested >= {LOO_FLOOR:.0%} "
-                  f"(chance: 1 in {len(r['loo'])})", not low)
+                  f"(chance: 1 in {len(r['loo'])}), or short of it by no more than chance "
+                  f"over its tested windows", not low)
 
 
 def stage_classify(d: Demo) -> Section:
@@ -399,7 +426,7 @@ def stage_classify(d: Demo) -> Section:
                     _cell(r["loo"].get(c), loo.get(c), "untested: no other object of it")
                     if "loo" in r else "not run"]
                    for c, a in r["random"].items()])
-        classify_checks(sec, name, r, label)
+        classify_checks(sec, name, r, label, rand, loo)
         art = [a for c, a in r["random"].items() if c != "apple" and a is not None]
         apple = r["random"].get("apple")
         sec.text.append(f"{name}: artificial materials "

@@ -225,3 +225,28 @@ def test_the_rig_stage_states_its_criteria():
     rig_checks(sec)
     assert [c.passed for c in sec.checks] == [True, False, True]
     assert sec.headline == "FAILED: n error vs the emulator's truth 0.700 deg"
+
+
+def test_a_material_short_of_its_figure_by_one_window_in_six_is_not_a_miss():
+    """The quick demo tests 4-8 windows a material: BOSS's glass at 5/6 (83.3 %) against the
+    85 % floor failed the whole stage, though a classifier right 85 % of the time does that
+    badly 62 % of the time. A shortfall passes only where chance explains it: 290 of 360
+    (80.6 %) does not, nor 0 of 6, nor a figure with no counts to judge it by."""
+    from dmdsm.host.demo.session import classify_checks, short_by_chance
+
+    assert short_by_chance(5, 6, 0.85) and short_by_chance(5, 14, 0.5)
+    assert not short_by_chance(290, 360, 0.85) and not short_by_chance(0, 6, 0.85)
+    assert not short_by_chance(0, 0, 0.85)
+    r = {"random": {"glass": 5 / 6, "steel": 290 / 360, "paper": 1.0},
+         "loo": {"glass": 5 / 14, "steel": 1 / 14, "paper": None}}
+    sec = Section("5.")
+    classify_checks(sec, "boss", r, "2 random 3:1 splits",
+                    {"glass": (5, 6), "steel": (290, 360), "paper": (4, 4)},
+                    {"glass": (5, 14), "steel": (1, 14)})
+    rand, loo = sec.checks
+    assert not rand.passed and rand.value == "steel 80.6% < 85.0% (290/360)"
+    assert not loo.passed and loo.value == "steel 7.1% (1/14)"
+    sec = Section("5.")  # without counts the figure alone decides, as before
+    classify_checks(sec, "boss", r, "2 random 3:1 splits")
+    assert sec.checks[0].value == "glass 83.3% < 85.0%; steel 80.6% < 85.0%"
+    assert sec.checks[1].value == "glass 35.7%; steel 7.1%"

@@ -402,7 +402,7 @@ def _list_models(args: argparse.Namespace) -> int:
 
 
 def _coverage(text: str) -> str:
-    """An auto scan's coverage for the list ("cov OA 98% US 97%"), "" for other scans."""
+    """An auto or sweep scan's coverage for the list ("cov OA 98% US 97%"), "" for others."""
     try:
         c = json.loads(text) if text else {}
         if not c:

@@ -143,6 +143,13 @@ def cmd_scan(args: argparse.Namespace) -> int:
                 print(f"auto: a line was left out: {why}")
             for note in a["notes"]:
                 print(f"auto: note: {note}")
+        elif run.coverage:  # a sweep: its band, measured by its own points
+            c = run.coverage
+            lo, hi = c["band_mm"]
+            print(f"sweep: coverage of the band it swept (heights {lo:.1f}-{hi:.1f} mm) at "
+                  f"{c['spacing_mm']:g} mm: OA {100 * c['oa']:.1f} %, US {100 * c['us']:.1f} %;"
+                  f" it found the surface in {100 * c['directions']:.0f} % of the directions "
+                  f"about the axis (the rest: no echo, counted as not covered)")
     if run.auto and not args.no_model:
         _build_model(args.db, plan.object_id, args.classifier, args.json)
     return 0

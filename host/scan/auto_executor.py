@@ -74,7 +74,7 @@ def first_look_outline(writer: ScanWriter, n_look_lines: int, plan: ScanPlan,
                        calibration: dict) -> Outline:
     """The outline from the first look's stored lines (point_index < n_look_lines), both
     modalities' points in the object frame."""
-    P = _stored_points(writer, n_look_lines, calibration)
+    P = stored_points(writer, n_look_lines, calibration)
     return outline_from_points(P, plan.radius_mm, plan.height_mm,
                                z_step_mm=plan.first_look_step_mm)
 
@@ -224,7 +224,7 @@ def plan_holes(writer: ScanWriter, n_before: int, auto: AutoPlan, look: list[Poi
     per_mod = []  # a hole of either: OA points do not cover a US hole
     for m in plan_modalities(plan):
         mask = np.zeros_like(closed)
-        mask[i, j] = ~covered_mask(ref, _stored_points(writer, n_before, calibration, (m,)),
+        mask[i, j] = ~covered_mask(ref, stored_points(writer, n_before, calibration, (m,)),
                                    AUTO_SPACING_MM)
         per_mod.append((mask, plan.max_incidence_deg if m == "oa" else
                         min(plan.max_incidence_deg, US_MAX_INCIDENCE_DEG)))
@@ -278,7 +278,7 @@ def plan_modalities(plan: ScanPlan) -> tuple[str, ...]:
     return ("oa", "us") if plan.modality == "both" else (plan.modality,)
 
 
-def _stored_points(writer: ScanWriter, n_lines: float, calibration: dict,
+def stored_points(writer: ScanWriter, n_lines: float, calibration: dict,
                    modalities: tuple[str, ...] = ("oa", "us")) -> np.ndarray:
     """Object-frame points (mm) of the modalities, from the file's lines before n_lines."""
     d, m = writer.data, writer.n_done
@@ -366,5 +366,5 @@ def outline_coverage(writer: ScanWriter, auto: AutoPlan, calibration: dict,
     """Per modality, the share of the closed outline's surface with a stored point within
     spacing_mm (what `dmdsm scan` reports when no truth is known)."""
     ref = auto.outline.surface_points()
-    return {m: round(float(coverage(ref, _stored_points(writer, np.inf, calibration, (m,)),
+    return {m: round(float(coverage(ref, stored_points(writer, np.inf, calibration, (m,)),
                                     spacing_mm)), 4) for m in ("oa", "us")}

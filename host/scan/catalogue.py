@@ -25,7 +25,7 @@ CREATE TABLE IF NOT EXISTS scans (
     n_planned INTEGER NOT NULL,
     plan_hash TEXT NOT NULL,
     content_hash TEXT NOT NULL DEFAULT '',  -- sha256 of the file once complete
-    coverage TEXT NOT NULL DEFAULT ''       -- an auto scan's coverage per modality (JSON)
+    coverage TEXT NOT NULL DEFAULT ''       -- an auto or sweep scan's coverage (JSON)
 );
 """
 COLUMNS = ("scan_id", "object_id", "material", "started", "finished", "status", "path",

@@ -200,7 +200,7 @@ class ScanWriter:
 
     def close(self, status: str, attrs: dict[str, str] | None = None) -> None:
         """Close the file, marking it `complete` or `interrupted` (readable either way);
-        attrs: more text attributes of /entry (an auto scan's coverage, as JSON)."""
+        attrs: more text attributes of /entry (an auto or sweep scan's coverage, as JSON)."""
         import h5py
 
         if not self.f.id.valid:

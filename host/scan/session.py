@@ -25,7 +25,7 @@ from ..links.stage import StageStopped
 from ..links.transport import LinkError
 from ..ranging.calibrate import RangingSetup
 from ..version import __version__
-from .auto_executor import outline_coverage, run_auto_scan
+from .auto_executor import outline_coverage, run_auto_scan, stored_points
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan
@@ -43,7 +43,7 @@ from .plan import (
     table_speed_deg_s,
 )
 from .scanfile import ScanFileError, ScanWriter, read_scan
-from .sweep import Turn, sweep_points, sweep_turns
+from .sweep import Turn, beam_heights_mm, sweep_coverage, sweep_points, sweep_turns
 from .sweep_executor import run_sweep_scan
 
 
@@ -58,6 +58,7 @@ class ScanRun:
     status: str  # "complete", "already complete" or "interrupted"
     stats: ScanStats = field(default_factory=ScanStats)
     auto: dict = field(default_factory=dict)  # an auto scan: angles, lines, coverage
+    coverage: dict = field(default_factory=dict)  # an auto or sweep scan's, per modality
 
     def summary(self) -> dict:
         """The JSON summary `dmdsm scan --json` prints (times in s and ms, rate in points/s)."""
@@ -68,7 +69,8 @@ class ScanRun:
                 "points_per_s": round(s.stored / s.wall_s, 3) if s.wall_s else 0,
                 "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()},
                 **({"clock_sync": s.clock} if s.clock else {}),
-                **({"auto": self.auto} if self.auto else {})}
+                **({"auto": self.auto} if self.auto else {}),
+                **({"coverage": self.coverage} if self.coverage else {})}
 
 
 def scan_identity(plan: ScanPlan, calibration_toml: str, setup: RangingSetup) -> str:
@@ -239,6 +241,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
                         "coverage": outline_coverage(writer, auto, calibration,
                                                      AUTO_SPACING_MM),
                         "coverage_spacing_mm": AUTO_SPACING_MM}
+            run.coverage = {**run.auto["coverage"], "spacing_mm": AUTO_SPACING_MM}
         elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
@@ -250,6 +253,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
                 else None
             run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,
                                        ranger, machine, progress, window)
+            run.coverage = swept_coverage(writer, plan, turns, calibration)
         else:
             run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
         stage.move(x=here["X"], y=points[0].y, z=here["Z"], feed_mm_min=plan.feed_mm_min)
@@ -263,9 +267,25 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         raise
     finally:
         run.points = writer.n_done
-        writer.close(run.status, {"coverage": json.dumps(
-            {**run.auto["coverage"], "spacing_mm": run.auto["coverage_spacing_mm"]})}
-            if run.auto else None)
+        writer.close(run.status, {"coverage": json.dumps(run.coverage)} if run.coverage
+                     else None)
         record(Path(db), scan_id, n_planned=len(points),
                content_hash=file_hash(path) if run.status == "complete" else "")
     return run
+
+
+def swept_coverage(writer: ScanWriter, plan: ScanPlan, turns: list[Turn], calibration: dict
+                   ) -> dict:
+    """A sweep's coverage of its band (sweep.sweep_coverage) from every point in its file,
+    at the auto plans' spacing; with the band (object-frame heights, mm): from the first
+    turn's start to the last one's end, where the beam crosses them at every radius."""
+    v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
+    first = beam_heights_mm(np.array([turns[0].x, turns[0].y, turns[0].z0]), v, n, X_R,
+                            plan.radius_mm)
+    last = beam_heights_mm(np.array([turns[-1].x, turns[-1].y, turns[-1].z1]), v, n, X_R,
+                           plan.radius_mm)
+    band = (max(first), min(last))  # crossed at every radius (v dips or climbs: either end)
+    cov = sweep_coverage({m: stored_points(writer, np.inf, calibration, (m,))
+                          for m in ("oa", "us")}, plan.radius_mm, plan.height_mm, band,
+                         AUTO_SPACING_MM)
+    return {**cov, "spacing_mm": AUTO_SPACING_MM, "band_mm": [round(b, 2) for b in band]}

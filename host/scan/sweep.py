@@ -141,3 +141,65 @@ def sweep_feed_mm_min(turn: Turn, speed_deg_s: float) -> float:
     t = abs(turn.a1 - turn.a0) / speed_deg_s
     dz = abs(turn.z1 - turn.z0)
     return max(dz / t * 60.0, 1.0) if dz > 0 else speed_deg_s * 60.0
+
+
+# ---------------------------------------------------------------------------- coverage
+
+
+def beam_heights_mm(S: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
+                    radius_mm: float) -> tuple[float, float]:
+    """Heights (mm, object frame: along the table axis n from X_R) at which the beam from the
+    stage position S along v enters the bounding cylinder (radius_mm about the axis) and
+    passes the axis (closest approach): a surface the beam meets lies between the two."""
+    S, v, n, X_R = (np.asarray(a, float) for a in (S, v, n, X_R))
+    v, n = v / np.linalg.norm(v), n / np.linalg.norm(n)
+    w = S - X_R
+    b, d, e = float(v @ n), float(v @ w), float(n @ w)
+    den = 1.0 - b * b
+    t = (b * e - d) / den if den > 1e-12 else 0.0  # along the beam to the axis
+    t_in = t - radius_mm / math.sqrt(max(den, 1e-12))  # across the radius, off the axis
+    return float(n @ (w + t_in * v)), float(n @ (w + t * v))
+
+
+def sweep_coverage(points_mm: dict[str, np.ndarray], radius_mm: float, height_mm: float,
+                   band_mm: tuple[float, float], spacing_mm: float) -> dict[str, float]:
+    """What a sweep covered of its band, from its own object-frame points (mm, per modality).
+
+    The outline r(phi, z) they measure (outline_from_points: 5 deg by spacing_mm cells, a gap
+    of up to two cells in a row closed between measured ones) over the rows whose middle lies
+    in band_mm (the heights the beam crossed at every radius; the row nearest its middle if
+    none); a cell the sweep passed between (its turns zigzag: 2 x step_mm apart in height
+    where they reverse) takes the radius of the nearest closed cell above or below it. Per
+    modality: the share of the band's cells whose surface point has a point of that
+    modality within spacing_mm, a direction with no echo at any height counted as not
+    covered; `directions`: the share of the 5 deg directions about the axis in which the
+    sweep found the surface in the band. Cells are 5 deg of azimuth: a share of directions
+    about the axis, not of area."""
+    from .coverage import covered_mask
+    from .outline import outline_from_points
+
+    pts = {m: np.asarray(p, float).reshape(-1, 3) for m, p in points_mm.items()}
+    out = outline_from_points(np.vstack([np.empty((0, 3)), *pts.values()]), radius_mm,
+                              height_mm, z_step_mm=spacing_mm)
+    lo, hi = sorted(band_mm)
+    e = out.z_edges_mm
+    mid = 0.5 * (e[1:] + e[:-1])
+    rows = (mid >= lo) & (mid <= hi)
+    if not rows.any():
+        rows[int(np.argmin(np.abs(mid - 0.5 * (lo + hi))))] = True
+    r = out.filled_r_mm()
+    closed = np.isfinite(r[:, rows])
+    cells = closed.size
+    # each band cell's radius: its own, else the nearest closed cell's of its column
+    have = np.isfinite(r)
+    jj = np.arange(r.shape[1])
+    dist = np.where(have[:, None, :], np.abs(jj[None, :, None] - jj[None, None, :]), np.inf)
+    near = np.argmin(dist, axis=2)                       # (nphi, nz): nearest closed row
+    rr = np.take_along_axis(r, near, axis=1)[:, rows]    # NaN where a column has none
+    i, j = np.nonzero(np.isfinite(rr))
+    phi = np.radians((i + 0.5) * out.phi_step_deg)
+    ref = np.column_stack([rr[i, j] * np.cos(phi), rr[i, j] * np.sin(phi), mid[rows][j]])
+    res = {m: round(float(covered_mask(ref, p, spacing_mm).sum()) / cells, 4)
+           for m, p in pts.items()}
+    res["directions"] = round(float(closed.any(axis=1).mean()), 4)
+    return res

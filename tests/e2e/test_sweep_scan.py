@@ -6,6 +6,7 @@ STEP line is not wired is named in one line."""
 
 import json
 import subprocess
+import sys
 
 import numpy as np
 from fly_scan_helpers import (
@@ -18,7 +19,7 @@ from fly_scan_helpers import (
 )
 
 from dmdsm.host.links.sensor import SensorClient
-from dmdsm.host.scan.coverage import laser_duty
+from dmdsm.host.scan.coverage import coverage, laser_duty
 from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
@@ -69,6 +70,28 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     assert len(np.unique((phi // 10).astype(int))) >= 30
     for face in (0.0, 90.0, 180.0, 270.0):
         assert np.sum(np.abs((phi - face + 180) % 360 - 180) < 10) > 20, face
+    # its coverage of the band it swept (the beam at the axis ~0.6 mm below the stage's Z
+    # - X_R: v dips), in the run's summary, the file, the catalogue and `db list`
+    c = run.coverage
+    assert 13.0 < c["band_mm"][0] < 14.0 and 17.0 < c["band_mm"][1] < 18.0, c
+    assert c["directions"] > 0.9 and c["oa"] > 0.85 and c["us"] < c["oa"], c
+    # against the truth: the block's four faces sampled every 0.5 mm over the band, the
+    # share with an OA point within 2 mm (a share of area, the figure one of directions)
+    lo, hi = c["band_mm"]
+    zz = np.arange(np.ceil(lo), hi, 0.5)
+    face = [np.column_stack([np.full(len(u), a), u, np.full(len(u), h)]) for h in zz
+            for a, u in ((25.0, np.arange(-15, 15.01, 0.5)), (-25.0, np.arange(-15, 15.01, 0.5)))]
+    face += [np.column_stack([u, np.full(len(u), b), np.full(len(u), h)]) for h in zz
+             for b, u in ((15.0, np.arange(-25, 25.01, 0.5)), (-15.0, np.arange(-25, 25.01, 0.5)))]
+    ref = np.vstack(face)
+    assert np.abs(truth.signed_distance(ref)).max() < 0.01  # the block is where said
+    # (2026-12-06: 0.951 of the area, 0.944 reported)
+    assert abs(coverage(ref, P["P"], 2.0) - c["oa"]) < 0.05, (coverage(ref, P["P"], 2.0), c)
+    assert json.loads(data.entry["coverage"]) == c == run.summary()["coverage"]
+    r = subprocess.run([sys.executable, "-m", "dmdsm.host", "db", "list", "--db",
+                        str(tmp_path / "db")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and f"cov OA {100 * c['oa']:.0f}% US {100 * c['us']:.0f}%" \
+        in r.stdout, r.stdout
 
 
 def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emulator,

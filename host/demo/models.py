@@ -173,9 +173,12 @@ def stage_models(d: Demo) -> Section:
             duty["sweep"] = span_duty(both["sweep"])
             levels_band = met_band(both["sweep"]) or levels_band
         cov_levels = band_coverage(truths, v, n, both, levels_band, 45.0)
+        told = {"auto": r.get("coverage") or {},  # what each scan reported, from its points
+                "sweep": (sweeps.get(name) or {}).get("summary", {}).get("coverage") or {}}
         for mode in both:
             swept.append([name, mode, f"{levels_band[0]:.1f}-{levels_band[1]:.1f}",
                           _pct(cov_levels[mode]["oa"]), _pct(cov_levels[mode]["us"]),
+                          f"{_pct(told[mode].get('oa'))} / {_pct(told[mode].get('us'))}",
                           _pct(duty[mode])])
         if not (duty.get("sweep") or 0) >= 0.5:
             idle.append(f"{name} ({_pct(duty.get('sweep'))} %)")
@@ -221,15 +224,19 @@ def stage_models(d: Demo) -> Section:
     sec.table(["object", "scan", "OA coverage % (band)", "US coverage % (band)",
                "laser duty % (first to last waveform)"], cover)
     sec.table(["object", "scan", "z band (mm): where the sweep's beam met it", "OA coverage %",
-               "US coverage %", "laser duty % (first to last waveform)"], swept)
+               "US coverage %", "OA / US % the scan reported (of its own outline)",
+               "laser duty % (first to last waveform)"], swept)
     sec.text.append(
         f"Each object is also swept over the campaign's levels (`dmdsm scan --mode sweep`, "
         f"into {d.out / 'db_sweep'}: the table turning under the sensor while it climbs, 2 mm "
         f"a turn); the second coverage table compares it with the auto scan in that band "
         f"(the first is over the whole band the auto scan's model spans, its first look's "
-        f"included). The laser duty is the share of the shots fired from a scan's first "
-        f"waveform to its last that went into a stored waveform; `python "
-        f"bench/scan_coverage.py` gives it from the scan's start, approach included. "
+        f"included), from the emulator's truth beside what each scan reported without it "
+        f"(an auto scan of its first look's outline, a sweep of the outline its own points "
+        f"measure in the band it swept: docs/scanning.md). The laser duty is the share of "
+        f"the shots fired from a scan's first waveform to its last that went into a "
+        f"stored waveform; `python bench/scan_coverage.py` gives it from the scan's "
+        f"start, approach included. "
         f"`dmdsm campaign {toml}` ({len(names)} object{'s' if len(names) > 1 else ''}, "
         f"one per material, each over {LEVELS_QUICK if d.quick else LEVELS} levels 2 mm "
         f"apart about half its height: the emulator's time), into {db}; the classifier is "

@@ -31,6 +31,9 @@ def plans(draw: st.DrawFn) -> ScanPlan:
         rescan_budget_s=draw(st.floats(0.0, 3600.0)))
     assume(plan.step_mm <= 2 * plan.half_width_mm)
     assume(plan.mode == "step" or plan.step_mm * plan.laser_hz / plan.average <= 200.0)
+    if plan.mode == "sweep":  # a sweep's passes: offsets of the beam within the radius
+        plan.offsets_mm = [f * plan.radius_mm for f in
+                           draw(st.lists(st.floats(-0.99, 0.99), min_size=1, max_size=9))]
     return plan
 
 
@@ -122,3 +125,33 @@ def test_a_hostile_plan_file_is_one_line(tmp_path):
         with pytest.raises(PlanError, match=says) as e:
             load_plan(tmp_path / name)
         assert "\n" not in str(e.value)
+
+
+def test_a_sweeps_offsets_are_checked_and_named(tmp_path):
+    """offsets_mm: a sweep's passes, each offset within the bounding cylinder's radius, 1 to
+    9 of them; on another mode, or not numbers, a PlanError that names the key."""
+    import pytest
+
+    from dmdsm.host.scan.plan import PlanError
+    base = ('[sample]\nobject_id = "box"\n[object]\nradius_mm = 30.0\n[scan]\n'
+            'levels_mm = [10.0, 14.0]\nstep_mm = 2.0\naverage = 12\n')
+    path = tmp_path / "plan.toml"
+    path.write_text(base + 'mode = "sweep"\noffsets_mm = [0, 12.5, -12.5]\n')
+    plan = load_plan(path)
+    assert plan.offsets_mm == [0.0, 12.5, -12.5] and "offsets_mm" in plan.to_toml()
+    assert plan.n_points() == 3 * ScanPlan(**{**vars(plan), "offsets_mm": [0.0]}).n_points()
+    for line, words in (('mode = "sweep"\noffsets_mm = [0.0, 30.0]', "within the bounding "
+                                                                      "cylinder's radius"),
+                        ('mode = "sweep"\noffsets_mm = []', "1 to 9 offsets"),
+                        ('mode = "sweep"\noffsets_mm = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]',
+                         "1 to 9 offsets"),
+                        ('mode = "sweep"\noffsets_mm = ["4"]', "offsets_mm must be a list of "
+                                                             "numbers in mm"),
+                        ('mode = "sweep"\noffsets_mm = [nan]', "must be a finite number"),
+                        ('mode = "fly"\noffsets_mm = [0.0, 5.0]', "offsets_mm is for sweeps")):
+        path.write_text(base + line + "\n")
+        with pytest.raises(PlanError, match=words):
+            load_plan(path)
+    # a sweep with the one pass through the axis reads and writes as before offsets
+    path.write_text(base + 'mode = "sweep"\noffsets_mm = [0.0]\n')
+    assert "offsets_mm" not in load_plan(path).to_toml()

@@ -105,3 +105,37 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     (flat,) = sweep_turns(one, v, X_R)
     assert flat.z0 == flat.z1 and sweep_feed_mm_min(flat, 90.0) == 90.0 * 60.0
     assert m.max_feedrate[m.axis("A")] == 90
+
+
+def test_a_sweep_in_passes_goes_up_down_and_up_offset_across_the_beam_outside_the_cylinder():
+    """offsets_mm: one pass per offset; the second descends where the first ended, the
+    table's direction alternating on through the passes (A within one revolution); the
+    stage's path (turn ends and the moves across the beam) never inside the bounding
+    cylinder, and the beam of each pass the offset from the axis."""
+    from dmdsm.host.scan.plan import ScanPlan
+    from dmdsm.host.scan.session import sweep_path
+    from dmdsm.host.scan.sweep import passes, sweep_turns
+
+    v = np.array([0.05, 0.99, -0.02])
+    X_R = np.array([200.0, 260.0, 30.0])
+    plan = ScanPlan("box", radius_mm=30.0, levels_mm=[4.5, 8.5], step_mm=2.0, average=12,
+                    mode="sweep", offsets_mm=[0.0, 10.0, -10.0])
+    plan.validate()
+    turns = sweep_turns(plan, v, X_R)
+    groups = passes(turns)
+    assert [len(g) for g in groups] == [2, 2, 2] and [t.index for t in turns] == list(range(6))
+    assert [(t.z0 - X_R[2], t.z1 - X_R[2]) for t in turns] == \
+        [(4.5, 6.5), (6.5, 8.5), (8.5, 6.5), (6.5, 4.5), (4.5, 6.5), (6.5, 8.5)]
+    assert [(t.a0, t.a1) for t in turns] == [(0.0, 360.0), (360.0, 0.0)] * 3
+    assert all(a.z1 == b.z0 and a.a1 == b.a0 for a, b in zip(turns, turns[1:]))
+    u = v[:2] / np.linalg.norm(v[:2])
+    for g, d in zip(groups, plan.offsets_mm):
+        rel = X_R[:2] - np.array([g[0].x, g[0].y])
+        assert u[0] * rel[1] - u[1] * rel[0] == pytest.approx(-d)  # the beam d off the axis
+        assert rel @ u == pytest.approx(plan.radius_mm + plan.standoff_mm)
+    targets, labels = sweep_path(turns)
+    assert labels.count("turn 2's start") == 1 and labels.count("turn 4's start") == 1
+    # each straight move between two targets stays outside the cylinder: its points all
+    # lie radius + standoff along the beam's direction from the axis
+    along = [(X_R[:2] - t[:2]) @ u for t in targets]
+    assert np.allclose(along, plan.radius_mm + plan.standoff_mm)

@@ -34,6 +34,7 @@ class PlanError(ValueError):
 
 
 MAX_SETTLE_S = 60.0  # s of dwell per point a plan may ask for
+MAX_OFFSETS = 9      # a sweep's passes at most (each a whole helix)
 
 
 @dataclass
@@ -66,6 +67,9 @@ class ScanPlan:
     max_incidence_deg: float = 45.0
     max_angles: int = 16
     rescan_budget_s: float = 60.0    # lines scanned again for the holes left, in s at most
+    # sweep: one pass of the helix per offset (mm) of the beam from the table axis, across
+    # the beam in the table plane: a flat face seen head on away from its middle
+    offsets_mm: list[float] = field(default_factory=lambda: [0.0])
 
     def validate(self) -> None:
         """Raise PlanError naming the first bad value."""
@@ -133,6 +137,7 @@ class ScanPlan:
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int)}
         numbers.update({f"levels_mm[{i}]": x for i, x in enumerate(self.levels_mm)})
         numbers.update({f"angles_deg[{i}]": x for i, x in enumerate(self.angles_deg)})
+        numbers.update({f"offsets_mm[{i}]": x for i, x in enumerate(self.offsets_mm)})
         for k, v in numbers.items():
             if not math.isfinite(v):
                 raise PlanError(f"{k} must be a finite number (got {v})")
@@ -140,11 +145,19 @@ class ScanPlan:
             if not lo <= getattr(self, k) <= hi:
                 raise PlanError(f"{k} = {getattr(self, k)} is outside what the sensor board "
                                 f"takes ({lo}..{hi})")
+        if not 1 <= len(self.offsets_mm) <= MAX_OFFSETS or \
+                not all(abs(d) < self.radius_mm for d in self.offsets_mm):
+            raise PlanError(f"offsets_mm must give 1 to {MAX_OFFSETS} offsets of the beam "
+                            f"from the table axis, each within the bounding cylinder's radius "
+                            f"({self.radius_mm:g} mm; got {self.offsets_mm!r:.60})")
+        if self.mode != "sweep" and self.offsets_mm != [0.0]:
+            raise PlanError("offsets_mm is for sweeps (mode = \"sweep\"): leave it out of a "
+                            f"{self.mode} plan")
         n = len(self.levels_mm) * len(self.angles_deg) * \
             (2 * self.half_width_mm / self.step_mm + 1)  # float: no huge integers
         if self.mode == "sweep":
             n = (max(self.levels_mm) - min(self.levels_mm)) / self.step_mm * \
-                2 * math.pi * self.radius_mm / self.step_mm
+                2 * math.pi * self.radius_mm / self.step_mm * len(self.offsets_mm)
         if not n <= MAX_POINTS:
             raise PlanError(f"the plan has {n:.3g} points (at most {MAX_POINTS}): raise step_mm "
                             f"or lower half_width_mm, or split the scan into several plans")
@@ -157,7 +170,7 @@ class ScanPlan:
 
             m = load_machine()
             span = max(self.levels_mm) - min(self.levels_mm)
-            turns = max(math.ceil(span / self.step_mm - 1e-9), 1)
+            turns = max(math.ceil(span / self.step_mm - 1e-9), 1) * len(self.offsets_mm)
             speed = table_speed_deg_s(self, m.max_feedrate[m.axis("A")])
             return turns * max(int(round(360.0 / speed * self.laser_hz / self.average)), 1)
         columns = math.floor(2 * self.half_width_mm / self.step_mm + 1e-9) + 1
@@ -182,6 +195,8 @@ class ScanPlan:
         if self.mode != "auto":
             step_only += ("first_look_step_mm", "max_incidence_deg", "max_angles",
                           "rescan_budget_s")
+        if self.offsets_mm == [0.0]:  # the plain sweep's text (and id) as before offsets
+            step_only += ("offsets_mm",)
         out += ["", "[scan]"] + [f"{k} = {val(v)}" for k, v in d.items()
                                  if k not in sample + obj + step_only]
         return "\n".join(out) + "\n"
@@ -233,8 +248,10 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     of it is from the table axis, for an object not centred by its footprint, such as a mug
     centred by its body), one level at half its height (at most 40 mm), four angles, the
     middle 70 % of its width; every 4 mm step and shoot, every 2 mm fly; the modality given,
-    else the material's (modality_for). Edit the file for more levels or a finer step
-    (docs/scanning.md)."""
+    else the material's (modality_for); a sweep of an object that is not round in three
+    passes, the beam through the axis and a quarter of the width to either side of it (its
+    flat faces seen head on away from their middles). Edit the file for more levels or a
+    finer step (docs/scanning.md)."""
     modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
@@ -266,6 +283,9 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                        {"average": AUTO_AVERAGE, "feed_mm_min": AUTO_FEED_MM_MIN}
                        if mode == "auto" else {}),
                     **({"feed_mm_min": AUTO_FEED_MM_MIN} if mode == "sweep" else {}))
+    if mode == "sweep" and not round_:
+        quarter = mm(min(max(w, d) / 4, 0.9 * plan.radius_mm))
+        plan.offsets_mm = [0.0, quarter, -quarter]
     plan.validate()
     return plan
 
@@ -323,7 +343,8 @@ def load_plan(path: Path, **overrides: object) -> ScanPlan:
         raise PlanError(f"{path}: [scan] levels_mm is required (the sensor heights above the "
                         f"table, mm, e.g. levels_mm = [12.0, 24.0])")
     for key, unit, example in (("levels_mm", "mm", "[12.0, 24.0]"),
-                               ("angles_deg", "deg", "[0.0, 90.0, 180.0, 270.0]")):
+                               ("angles_deg", "deg", "[0.0, 90.0, 180.0, 270.0]"),
+                               ("offsets_mm", "mm", "[0.0, 12.0, -12.0]")):
         value = flat.get(key, [])
         if not isinstance(value, list) or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
@@ -345,6 +366,7 @@ def load_plan(path: Path, **overrides: object) -> ScanPlan:
         plan = ScanPlan(**flat)
         plan.levels_mm = [float(x) for x in plan.levels_mm]
         plan.angles_deg = [float(x) for x in plan.angles_deg]
+        plan.offsets_mm = [float(x) for x in plan.offsets_mm]
     except (TypeError, ValueError) as e:
         raise PlanError(f"{path}: {e}") from None
     plan.validate()

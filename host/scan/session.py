@@ -127,6 +127,9 @@ def sweep_path(turns: list[Turn]) -> tuple[list[np.ndarray], list[str]]:
     targets = [np.array([turns[0].x, turns[0].y, turns[0].z0])]
     labels = ["turn 0's start"]
     for t in turns:
+        if not np.array_equal(targets[-1], [t.x, t.y, t.z0]):  # a new pass: across the beam
+            targets.append(np.array([t.x, t.y, t.z0]))
+            labels.append(f"turn {t.index}'s start")
         targets.append(np.array([t.x, t.y, t.z1]))
         labels.append(f"turn {t.index}'s end")
     return targets, labels
@@ -245,14 +248,13 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
-        elif plan.mode == "sweep":
-            t = turns[0]
-            near, far = cylinder_window(np.array([[t.x, t.y, t.z0]]), v, n, X_R,
-                                        plan.radius_mm, plan.height_mm)
-            window = (float(near[0]), float(far[0])) if np.isfinite([near[0], far[0]]).all() \
-                else None
+        elif plan.mode == "sweep":  # each turn's window: its pass's offset moves it
+            near, far = cylinder_window(np.array([[t.x, t.y, t.z0] for t in turns]), v, n,
+                                        X_R, plan.radius_mm, plan.height_mm)
+            windows = {t.index: (float(a), float(b)) for t, a, b in zip(turns, near, far)
+                       if np.isfinite([a, b]).all()}
             run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,
-                                       ranger, machine, progress, window)
+                                       ranger, machine, progress, windows)
             run.coverage = swept_coverage(writer, plan, turns, calibration)
         else:
             run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)
@@ -277,13 +279,13 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
 def swept_coverage(writer: ScanWriter, plan: ScanPlan, turns: list[Turn], calibration: dict
                    ) -> dict:
     """A sweep's coverage of its band (sweep.sweep_coverage) from every point in its file,
-    at the auto plans' spacing; with the band (object-frame heights, mm): from the first
-    turn's start to the last one's end, where the beam crosses them at every radius."""
+    at the auto plans' spacing; with the band (object-frame heights, mm): from the lowest
+    turn's bottom to the highest one's top, where the beam crosses them at every radius."""
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
-    first = beam_heights_mm(np.array([turns[0].x, turns[0].y, turns[0].z0]), v, n, X_R,
-                            plan.radius_mm)
-    last = beam_heights_mm(np.array([turns[-1].x, turns[-1].y, turns[-1].z1]), v, n, X_R,
-                           plan.radius_mm)
+    z = [h for t in turns for h in (t.z0, t.z1)]
+    x, y = turns[0].x, turns[0].y  # the first pass's (the beam through the axis: offset 0)
+    first = beam_heights_mm(np.array([x, y, min(z)]), v, n, X_R, plan.radius_mm)
+    last = beam_heights_mm(np.array([x, y, max(z)]), v, n, X_R, plan.radius_mm)
     band = (max(first), min(last))  # crossed at every radius (v dips or climbs: either end)
     cov = sweep_coverage({m: stored_points(writer, np.inf, calibration, (m,))
                           for m in ("oa", "us")}, plan.radius_mm, plan.height_mm, band,

@@ -109,17 +109,39 @@ def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Turn]:
     """The sweep's turns: the sensor standoff_mm outside the bounding cylinder, its beam
     through the table axis; Z from the lowest level to the highest, step_mm a turn (one flat
     turn with one level); the table from 0 to 360 deg and back, turn after turn (A stays
-    within one revolution)."""
+    within one revolution). One pass of the helix per offset in plan.offsets_mm (mm): the
+    sensor moved that far across the beam in the table plane (+: to the beam's left seen
+    from above), the passes climbing and descending in turn, so one pass ends where the
+    next begins but for the offset (a move across the beam, outside the cylinder)."""
     v = np.asarray(v, float) / np.linalg.norm(v)
     vxy = v[:2] / np.linalg.norm(v[:2])
-    x, y = np.asarray(X_R, float)[:2] - (plan.radius_mm + plan.standoff_mm) * vxy
+    left = np.array([-vxy[1], vxy[0]])
+    base = np.asarray(X_R, float)[:2] - (plan.radius_mm + plan.standoff_mm) * vxy
     lo, hi = min(plan.levels_mm), max(plan.levels_mm)
     n = max(math.ceil((hi - lo) / plan.step_mm - 1e-9), 1)
     pitch = (hi - lo) / n if hi > lo else 0.0
     z = float(X_R[2]) + lo
-    return [Turn(k, float(x), float(y), z + k * pitch, z + (k + 1) * pitch,
-                 0.0 if k % 2 == 0 else 360.0, 360.0 if k % 2 == 0 else 0.0)
-            for k in range(n)]
+    turns: list[Turn] = []
+    for p, d in enumerate(plan.offsets_mm):
+        x, y = base + float(d) * left
+        for k in range(n):
+            up = k if p % 2 == 0 else n - k  # a descending pass starts at the top
+            z0, z1 = z + up * pitch, z + (up + (1 if p % 2 == 0 else -1)) * pitch
+            i = len(turns)
+            turns.append(Turn(i, float(x), float(y), z0, z1, 0.0 if i % 2 == 0 else 360.0,
+                              360.0 if i % 2 == 0 else 0.0))
+    return turns
+
+
+def passes(turns: list[Turn]) -> list[list[Turn]]:
+    """The turns grouped into passes: runs of turns at one (x, y)."""
+    out: list[list[Turn]] = []
+    for t in turns:
+        if out and (out[-1][-1].x, out[-1][-1].y) == (t.x, t.y):
+            out[-1].append(t)
+        else:
+            out.append([t])
+    return out
 
 
 def sweep_points(plan: ScanPlan, turns: list[Turn], speed_deg_s: float) -> list[Point]:

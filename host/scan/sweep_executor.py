@@ -28,7 +28,7 @@ from .common import Progress, ScanStats, approach
 from .fly_executor import SYNC_WAIT_S, FlyScanError, straddles
 from .plan import ScanPlan, table_speed_deg_s
 from .scanfile import PHASES, ScanWriter
-from .sweep import Turn, counted_steps, sweep_feed_mm_min
+from .sweep import Turn, counted_steps, passes, sweep_feed_mm_min
 
 SYNC_A = SPEC.enums["sync_input"]["a"]  # the table's STEP line's motion-sync input
 STALL_S = 3.0  # no table step counted for this long (s, device clock): the sweep stops
@@ -42,12 +42,12 @@ class SweepRun:
     def __init__(self, stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                  n_planned: int, writer: ScanWriter, ranger: PointRanger,
                  machine: MachineLimits, progress: Progress | None = None,
-                 window_mm: tuple[float, float] | None = None) -> None:
-        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). window_mm:
-        (near, far) beam distances where the beam crosses the bounding cylinder (the ranger
-        reads a lone pulse by it)."""
+                 windows_mm: dict[int, tuple[float, float]] | None = None) -> None:
+        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). windows_mm:
+        by turn index, the (near, far) beam distances where its beam crosses the bounding
+        cylinder (the ranger reads a lone pulse by it)."""
         self.stage, self.sensor, self.plan, self.turns = stage, sensor, plan, turns
-        self.window = window_mm
+        self.windows = windows_mm or {}
         self.n_planned, self.writer, self.ranger, self.machine = n_planned, writer, ranger, \
             machine
         self.progress = progress
@@ -68,16 +68,19 @@ class SweepRun:
         return self.turns[int(done.max()) + 1:] if len(done) else self.turns
 
     def run(self) -> ScanStats:
-        """Approach, sweep every turn left, storing each as soon as the table has left it;
-        Ctrl-C stops the stage and keeps the turns already measured."""
+        """Approach, sweep every turn left, pass by pass, storing each turn as soon as the
+        table has left it; Ctrl-C stops the stage and keeps the turns already measured."""
         todo = self.todo()
         if todo:
             t = todo[0]  # into the front plane along Y, then to the first turn's start
             approach(self.stage, t.y, self.plan.feed_mm_min)
-            self.stage.move(x=t.x, y=t.y, z=t.z0, a=t.a0, feed_mm_min=self.plan.feed_mm_min)
-            self.stage.wait()
             try:
-                self.sweep(todo)
+                for group in passes(todo):  # the next pass: across the beam (Z and A are
+                    t = group[0]            # where the last one ended), outside the cylinder
+                    self.stage.move(x=t.x, y=t.y, z=t.z0, a=t.a0,
+                                    feed_mm_min=self.plan.feed_mm_min)
+                    self.stage.wait()
+                    self.sweep(group)
             except (KeyboardInterrupt, StageStopped):
                 try:
                     self.stage.stop()
@@ -233,7 +236,7 @@ class SweepRun:
             t = dict(timing or dict.fromkeys(PHASES, 0.0))
             t2 = time.monotonic()
             values = _range(rows, turn, self.ranger, 1, self.unix_minus_monotonic, self.plan,
-                            self.window)
+                            self.windows.get(turn.index))
             t["ranging"] = time.monotonic() - t2
             values["phase_time_s"] = np.tile([t[k] / n for k in PHASES], (n, 1))
             self.stats.store(lambda r=rows, v=values: self.writer.append_many(r["samples"], **v),
@@ -278,9 +281,9 @@ def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
 def run_sweep_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                    n_planned: int, writer: ScanWriter, ranger: PointRanger,
                    machine: MachineLimits, progress: Progress | None = None,
-                   window_mm: tuple[float, float] | None = None) -> ScanStats:
+                   windows_mm: dict[int, tuple[float, float]] | None = None) -> ScanStats:
     """Measure the turns after the last one in the file; returns what this run did
     (progress: points in the file, n_planned, phase times s, after each stored turn;
-    window_mm: where the beam crosses the bounding cylinder, for lone pulses)."""
+    windows_mm: by turn, where its beam crosses the bounding cylinder, for lone pulses)."""
     return SweepRun(stage, sensor, plan, turns, n_planned, writer, ranger, machine,
-                    progress, window_mm).run()
+                    progress, windows_mm).run()

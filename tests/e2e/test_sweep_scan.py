@@ -24,6 +24,7 @@ from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
 from dmdsm.host.scan.scanfile import read_scan
+from dmdsm.host.scan.sweep import sweep_coverage
 
 PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[14.0, 20.0], angles_deg=[0.0],
             step_mm=2.0, average=12, mode="sweep", feed_mm_min=9000.0)
@@ -77,13 +78,7 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     assert c["directions"] > 0.9 and c["oa"] > 0.85 and c["us"] < c["oa"], c
     # against the truth: the block's four faces sampled every 0.5 mm over the band, the
     # share with an OA point within 2 mm (a share of area, the figure one of directions)
-    lo, hi = c["band_mm"]
-    zz = np.arange(np.ceil(lo), hi, 0.5)
-    face = [np.column_stack([np.full(len(u), a), u, np.full(len(u), h)]) for h in zz
-            for a, u in ((25.0, np.arange(-15, 15.01, 0.5)), (-25.0, np.arange(-15, 15.01, 0.5)))]
-    face += [np.column_stack([u, np.full(len(u), b), np.full(len(u), h)]) for h in zz
-             for b, u in ((15.0, np.arange(-25, 25.01, 0.5)), (-15.0, np.arange(-25, 25.01, 0.5)))]
-    ref = np.vstack(face)
+    ref = block_faces(*c["band_mm"])
     assert np.abs(truth.signed_distance(ref)).max() < 0.01  # the block is where said
     # (2026-12-06: 0.951 of the area, 0.944 reported)
     assert abs(coverage(ref, P["P"], 2.0) - c["oa"]) < 0.05, (coverage(ref, P["P"], 2.0), c)
@@ -92,6 +87,20 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
                         str(tmp_path / "db")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and f"cov OA {100 * c['oa']:.0f}% US {100 * c['us']:.0f}%" \
         in r.stdout, r.stdout
+
+
+def block_faces(lo_mm, hi_mm, step_mm=0.5):
+    """The 50 x 30 mm block's four faces (object frame, mm) sampled every step_mm between the
+    heights lo_mm and hi_mm (the row nearest their middle if they are less than a step
+    apart)."""
+    zz = np.arange(np.ceil(lo_mm), hi_mm, step_mm)
+    zz = zz if len(zz) else np.array([round(0.5 * (lo_mm + hi_mm))])
+    u15, u25 = np.arange(-15, 15.01, step_mm), np.arange(-25, 25.01, step_mm)
+    face = [np.column_stack([np.full(len(u15), a), u15, np.full(len(u15), h)])
+            for h in zz for a in (25.0, -25.0)]
+    face += [np.column_stack([u25, np.full(len(u25), b), np.full(len(u25), h)])
+             for h in zz for b in (15.0, -15.0)]
+    return np.vstack(face)
 
 
 def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emulator,
@@ -129,3 +138,46 @@ def test_a_sweep_without_the_tables_sync_wire_says_what_to_wire(emulator, tmp_pa
     assert r.returncode != 0
     lines = [x for x in r.stderr.strip().splitlines() if x.strip()]
     assert "Traceback" not in r.stderr and "PB10" in lines[-1], r.stderr
+
+
+def test_a_sweep_in_passes_across_the_beam_sees_flat_faces_head_on(emulator, tmp_path):
+    """offsets_mm: one pass of the helix per offset of the beam from the table axis (up, down,
+    up: each pass starts where the last ended, but for a move across the beam). A box's
+    faces are seen head on away from their middles, where a beam through the axis meets them
+    obliquely and US (within ~15 deg of head on) has no echo: the US coverage rises, every
+    waveform still placed where its shots were and the sensor still clear of the block."""
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=34)
+    ranging, cal, text, _ = setup(emu, tmp_path)
+    plan = ScanPlan("aluminium_block", "aluminium",
+                    **{**PLAN, "levels_mm": [14.0, 18.0], "offsets_mm": [0.0, 12.0, -12.0]})
+    shots = record_poses(emu.sim)
+    run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
+    assert run.status == "complete" and run.stats.lost == 0
+    data = read_scan(run.path, waveforms=False)
+    p = data.points
+    assert sorted(set(p["point_index"].tolist())) == list(range(6))  # 3 passes of 2 turns
+    xy = {k: p["stage_position_mm"][p["point_index"] == k][0, :2] for k in range(6)}
+    vxy = np.asarray(cal["v"])[:2] / np.linalg.norm(np.asarray(cal["v"])[:2])
+    left = np.array([-vxy[1], vxy[0]])
+    assert np.allclose([(xy[k] - xy[0]) @ left for k in range(6)], [0, 0, 12, 12, -12, -12],
+                       atol=1e-6)
+    z = p["stage_position_mm"][:, 2] - emu.sim.scene.X_R[2]
+    for k, (lo, hi) in enumerate(((14, 16), (16, 18), (18, 16), (16, 14), (14, 16), (16, 18))):
+        zk = z[p["point_index"] == k]
+        assert abs(zk[0] - lo) < 0.1 and abs(zk[-1] - hi) < 0.1, (k, zk[0], zk[-1])
+    err = np.abs(pose_errors(p, shots))
+    assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
+    truth = emu.sim.truth_objects()[0]
+    sh = np.array(shots)
+    n, X_R = np.asarray(cal["n"]), np.asarray(cal["X_R"])
+    assert truth.signed_distance(object_points(sh[:, 1:4], sh[:, 4], n, X_R)).max() < -2.0
+    # the coverage: the first pass's points alone against all three's, over the same band
+    pts = scan_points(data)
+    first = {m: pts[m]["P"][np.isin(pts[m]["index"], [0, 1])] for m in ("oa", "us")}
+    alone = sweep_coverage(first, plan.radius_mm, plan.height_mm, run.coverage["band_mm"], 2.0)
+    c = run.coverage
+    # (2026-12-06: US 0.57 -> 0.94, OA 0.93 -> 1.0)
+    assert alone["us"] < 0.7 and c["us"] > 0.85 and c["us"] > alone["us"] + 0.2, (alone, c)
+    assert c["oa"] >= 0.95, c
+    ref = block_faces(*c["band_mm"])  # and of the true faces' area, US within 2 mm
+    assert coverage(ref, pts["us"]["P"], 2.0) > 0.85, coverage(ref, pts["us"]["P"], 2.0)

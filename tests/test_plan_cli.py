@@ -47,6 +47,11 @@ def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_p
     a = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "auto", "-o",
             "a.toml", cwd=tmp_path)
     assert a.returncode == 0 and "levels [4.5, 6.5, 8.5," in a.stdout and "np." not in a.stdout
+    # a box (not --round): three passes, the beam a quarter of its width to either side too
+    b = run("plan", "new", "box", "--size-mm", "50", "30", "40", "--mode", "sweep", cwd=tmp_path)
+    assert b.returncode == 0 and "3 passes, the beam +0, +12.5, -12.5 mm off the table axis" \
+        in b.stdout, b.stdout
+    assert load_plan(tmp_path / "box.toml").offsets_mm == [0.0, 12.5, -12.5]
 
 
 def test_plan_new_scans_a_one_modality_material_in_its_modality(tmp_path):

@@ -92,9 +92,13 @@ def _summary(plan: object) -> str:
         f"{plan.n_points()} points: "
     if plan.mode == "sweep":
         lo, hi = min(plan.levels_mm), max(plan.levels_mm)
+        offsets = plan.offsets_mm
         return (head + f"the table turning while Z climbs {lo:g} to {hi:g} mm, "
                 f"{plan.step_mm:g} mm a turn, {plan.standoff_mm:g} mm outside a "
-                f"{plan.radius_mm:g} mm cylinder")
+                f"{plan.radius_mm:g} mm cylinder"
+                + (f"; {len(offsets)} passes, the beam "
+                   + ", ".join(f"{d:+g}" for d in offsets) + " mm off the table axis"
+                   if offsets != [0.0] else ""))
     levels = ", ".join(f"{x:g}" for x in plan.levels_mm)
     angles = ", ".join(f"{x:g}" for x in plan.angles_deg)
     return (head + f"levels [{levels}] mm, angles [{angles}] deg, x ±{plan.half_width_mm:g} "

@@ -261,7 +261,8 @@ def one_scan(obj: str, mode: str, plan, setup, seed: int, speed: float, z_band: 
            "duty": laser_duty(stored, plan.average, sim.cfg.rep_rate_hz, sim_s),
            "keep_out": keep_out(np.asarray(shots, float).reshape(-1, 4), truths,
                                 np.asarray(cal["n"]), np.asarray(cal["X_R"])),
-           "plan": {"levels_mm": plan.levels_mm, "angles_deg": plan.angles_deg,
+           "plan": {"modality": plan.modality, "offsets_mm": plan.offsets_mm,
+                    "levels_mm": plan.levels_mm, "angles_deg": plan.angles_deg,
                     "step_mm": plan.step_mm, "average": plan.average,
                     "radius_mm": plan.radius_mm, "half_width_mm": plan.half_width_mm},
            "z_band_mm": list(z_band), "file": str(run.path)}
@@ -296,7 +297,8 @@ def row_text(r: dict) -> str:
 
 
 def summary(rows: list[dict], modes: list[str]) -> list[str]:
-    """Per mode: average coverage and duty, total violations, against the targets."""
+    """Per mode: average coverage (per modality, over the objects scanned for it: their
+    material's modality) and duty, total violations, against the targets."""
     out = [f"targets: coverage >= {TARGETS['coverage']:.0%} at {SPACING_MM:g} mm, laser duty "
            f">= {TARGETS['duty']:.0%}, {TARGETS['violations']} keep-out violations"]
     for mode in modes:
@@ -306,10 +308,13 @@ def summary(rows: list[dict], modes: list[str]) -> list[str]:
             out.append(f"{mode:5s}: no finished scan ({failed} failed)")
             continue
         parts = []
-        for m in MODS:
-            cov = np.nanmean([r["coverage"][m] for r in ok])
+        for m in MODS:  # over the objects scanned for m (their material's modality)
+            mine = [r for r in ok if r["plan"]["modality"] in ("both", m)]
+            if not mine:
+                continue
+            cov = np.nanmean([r["coverage"][m] for r in mine])
             miss = TARGETS["coverage"] - cov
-            parts.append(f"coverage {m.upper()} {cov:.1%}" + (
+            parts.append(f"coverage {m.upper()} {cov:.1%} over {len(mine)}" + (
                 f" (misses by {100 * miss:.1f} points)" if miss > 0 else " (met)"))
         duty = np.nanmean([r["duty"] for r in ok])
         miss = TARGETS["duty"] - duty

@@ -78,7 +78,7 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     from dmdsm.host.scan.sweep import sweep_feed_mm_min, sweep_points, sweep_turns
     from dmdsm.marlin_patch import load_machine
 
-    v = np.array([0.05, 0.99, -0.02])
+    v = np.array([0.05, 0.99, 0.0])  # a level beam (a dipping one: below)
     X_R = np.array([200.0, 260.0, 30.0])
     plan = ScanPlan("can", radius_mm=34.0, levels_mm=[4.5, 6.5, 8.5, 10.5, 12.5], step_mm=2.0,
                     average=12, mode="sweep")
@@ -105,6 +105,19 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     (flat,) = sweep_turns(one, v, X_R)
     assert flat.z0 == flat.z1 and sweep_feed_mm_min(flat, 90.0) == 90.0 * 60.0
     assert m.max_feedrate[m.axis("A")] == 90
+    # a beam dipping 0.02 (mm a mm) meets the cylinder's surface 0.16 mm below the sensor and
+    # the axis 0.84 mm below: the climb starts 0.16 mm higher and ends 0.84 mm higher, so
+    # every surface between them is met over the whole band (here one more turn)
+    dip = np.array([0.05, 0.99, -0.02])
+    rise = dip[2] / np.linalg.norm(dip)
+    turns = sweep_turns(plan, dip, X_R)
+    assert turns[0].z0 == pytest.approx(X_R[2] + 4.5 - rise * plan.standoff_mm)
+    assert turns[-1].z1 == pytest.approx(X_R[2] + 12.5 - rise * (plan.standoff_mm + 34.0))
+    assert len(turns) == 5 and all(t.z1 - t.z0 <= 2.0 for t in turns)
+    for S_z in (turns[0].z0, turns[-1].z1):  # the heights the beam meets at the two depths
+        for d in (plan.standoff_mm, plan.standoff_mm + 34.0):
+            h = S_z - X_R[2] + rise * d
+            assert (h <= 4.5 + 1e-9) if S_z == turns[0].z0 else (h >= 12.5 - 1e-9)
 
 
 def test_a_sweep_in_passes_goes_up_down_and_up_offset_across_the_beam_outside_the_cylinder():
@@ -116,7 +129,7 @@ def test_a_sweep_in_passes_goes_up_down_and_up_offset_across_the_beam_outside_th
     from dmdsm.host.scan.session import sweep_path
     from dmdsm.host.scan.sweep import passes, sweep_turns
 
-    v = np.array([0.05, 0.99, -0.02])
+    v = np.array([0.05, 0.99, 0.0])
     X_R = np.array([200.0, 260.0, 30.0])
     plan = ScanPlan("box", radius_mm=30.0, levels_mm=[4.5, 8.5], step_mm=2.0, average=12,
                     mode="sweep", offsets_mm=[0.0, 10.0, -10.0])

@@ -164,7 +164,8 @@ class ScanPlan:
 
     def n_points(self) -> int:
         """How many points the plan expands to (levels x angles x raster columns; a sweep's:
-        turns x one every step_mm around the bounding cylinder)."""
+        turns x one every step_mm around the bounding cylinder, for a level beam: one that
+        dips or climbs adds a turn or so, sweep.sweep_turns)."""
         if self.mode == "sweep":  # as sweep.sweep_points
             from dmdsm.marlin_patch import load_machine
 

@@ -98,7 +98,7 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
         targets, labels = fly_path(points, plan, machine)
         check_path(targets, labels, None, machine, zones)
     elif plan.mode == "sweep":  # the helix: straight in X, Y, Z from turn to turn
-        turns = sweep_turns(plan, v, X_R)
+        turns = sweep_turns(plan, v, X_R, n)
         points = sweep_points(plan, turns, table_speed_deg_s(
             plan, machine.max_feedrate[machine.axis("A")]))
         targets, labels = sweep_path(turns)
@@ -195,7 +195,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
     here = stage.where()
     here_xyz = np.array([here["X"], here["Y"], here["Z"]])
     v = np.asarray(calibration["v"], float)
-    turns = sweep_turns(plan, v, X_R) if plan.mode == "sweep" else []
+    turns = sweep_turns(plan, v, X_R, n) if plan.mode == "sweep" else []
     if plan.mode == "sweep":
         targets, labels = sweep_path(turns)
         check_path(targets[:1], labels[:1], here_xyz, machine, keep)

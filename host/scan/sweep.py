@@ -105,27 +105,36 @@ class Turn:
                 abs(round(self.a1 * spu[3]) - round(self.a0 * spu[3])))
 
 
-def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray) -> list[Turn]:
+def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
+                n: np.ndarray | None = None) -> list[Turn]:
     """The sweep's turns: the sensor standoff_mm outside the bounding cylinder, its beam
-    through the table axis; Z from the lowest level to the highest, step_mm a turn (one flat
-    turn with one level); the table from 0 to 360 deg and back, turn after turn (A stays
-    within one revolution). One pass of the helix per offset in plan.offsets_mm (mm): the
-    sensor moved that far across the beam in the table plane (+: to the beam's left seen
-    from above), the passes climbing and descending in turn, so one pass ends where the
-    next begins but for the offset (a move across the beam, outside the cylinder)."""
+    through the table axis; Z climbing step_mm a turn (at most: a whole number of turns)
+    over the heights that put the beam on every surface between the cylinder and the axis
+    within the band of levels_mm (a beam that dips or climbs along the table axis n meets
+    a surface at the axis that much below or above the sensor: the climb starts and ends
+    so much later; one flat turn with one level and a level beam); the table from 0 to 360 deg
+    and back, turn after turn (A stays within one revolution). One pass of the helix per
+    offset in plan.offsets_mm (mm): the sensor moved that far across the beam in the table
+    plane (+: to the beam's left seen from above), the passes climbing and descending in
+    turn, so one pass ends where the next begins but for the offset (a move across the
+    beam, outside the cylinder)."""
     v = np.asarray(v, float) / np.linalg.norm(v)
+    n = np.array([0.0, 0.0, 1.0]) if n is None else np.asarray(n, float) / np.linalg.norm(n)
     vxy = v[:2] / np.linalg.norm(v[:2])
     left = np.array([-vxy[1], vxy[0]])
     base = np.asarray(X_R, float)[:2] - (plan.radius_mm + plan.standoff_mm) * vxy
-    lo, hi = min(plan.levels_mm), max(plan.levels_mm)
-    n = max(math.ceil((hi - lo) / plan.step_mm - 1e-9), 1)
-    pitch = (hi - lo) / n if hi > lo else 0.0
+    rise = float(v @ n)  # the beam's rise (mm along n) a mm along it
+    near, far = plan.standoff_mm, plan.standoff_mm + plan.radius_mm
+    lo = min(plan.levels_mm) - max(rise * near, rise * far)  # low enough at every depth,
+    hi = max(plan.levels_mm) - min(rise * near, rise * far)  # high enough at every depth
+    k = max(math.ceil((hi - lo) / plan.step_mm - 1e-9), 1)
+    pitch = (hi - lo) / k if hi > lo else 0.0
     z = float(X_R[2]) + lo
     turns: list[Turn] = []
     for p, d in enumerate(plan.offsets_mm):
         x, y = base + float(d) * left
-        for k in range(n):
-            up = k if p % 2 == 0 else n - k  # a descending pass starts at the top
+        for j in range(k):
+            up = j if p % 2 == 0 else k - j  # a descending pass starts at the top
             z0, z1 = z + up * pitch, z + (up + (1 if p % 2 == 0 else -1)) * pitch
             i = len(turns)
             turns.append(Turn(i, float(x), float(y), z0, z1, 0.0 if i % 2 == 0 else 360.0,

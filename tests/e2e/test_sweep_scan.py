@@ -24,7 +24,7 @@ from dmdsm.host.scan.plan import ScanPlan
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
 from dmdsm.host.scan.scanfile import read_scan
-from dmdsm.host.scan.sweep import sweep_coverage
+from dmdsm.host.scan.sweep import sweep_coverage, sweep_turns
 
 PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[14.0, 20.0], angles_deg=[0.0],
             step_mm=2.0, average=12, mode="sweep", feed_mm_min=9000.0)
@@ -40,13 +40,19 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     assert run.status == "complete" and run.stats.lost == 0
     data = read_scan(run.path, waveforms=False)
     p = data.points
-    # three turns of 2 mm (14 -> 20 mm), the table 0 -> 360 -> 0 -> 360 deg
-    assert sorted(set(p["point_index"].tolist())) == [0, 1, 2]
+    # the band 14 -> 20 mm at every depth from the cylinder to the axis: the beam dips
+    # (v), so Z climbs from 14 mm plus the dip at the standoff to 20 mm plus the dip at the
+    # axis, at most 2 mm a turn; the table 0 -> 360 -> 0 ... deg
+    turns = sweep_turns(plan, cal["v"], cal["X_R"], cal["n"])
+    rise = float(np.dot(cal["v"], cal["n"]))
+    assert rise < -0.03 and len(turns) == 5, (rise, turns)
+    assert sorted(set(p["point_index"].tolist())) == list(range(len(turns)))
     z = p["stage_position_mm"][:, 2] - emu.sim.scene.X_R[2]
-    assert 14.0 <= z.min() < 14.1 and 19.9 < z.max() <= 20.0
-    for k, (lo, hi) in enumerate(((0, 360), (360, 0), (0, 360))):
+    low, high = 14.0 - rise * plan.standoff_mm, 20.0 - rise * (plan.standoff_mm + 31.0)
+    assert low - 1e-3 <= z.min() < low + 0.1 and high - 0.1 < z.max() <= high + 1e-3
+    for k, t in enumerate(turns):
         th = p["theta_deg"][p["point_index"] == k]
-        assert abs(th[0] - lo) < 2 and abs(th[-1] - hi) < 2 and len(th) > 300
+        assert abs(th[0] - t.a0) < 2 and abs(th[-1] - t.a1) < 2 and len(th) > 300
     # each waveform where the mean of its shots' true pose was: Z within the stage's 2 um
     # scatter and a Z step, the table within one of its steps (0.1125 deg) and its 0.01 deg
     # angle scatter
@@ -71,16 +77,16 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     assert len(np.unique((phi // 10).astype(int))) >= 30
     for face in (0.0, 90.0, 180.0, 270.0):
         assert np.sum(np.abs((phi - face + 180) % 360 - 180) < 10) > 20, face
-    # its coverage of the band it swept (the beam at the axis ~0.6 mm below the stage's Z
-    # - X_R: v dips), in the run's summary, the file, the catalogue and `db list`
+    # its coverage of the band it swept (the levels' 14-20 mm at every depth), in the run's
+    # summary, the file, the catalogue and `db list`
     c = run.coverage
-    assert 13.0 < c["band_mm"][0] < 14.0 and 17.0 < c["band_mm"][1] < 18.0, c
+    assert 13.9 < c["band_mm"][0] < 14.1 and 19.9 < c["band_mm"][1] < 20.1, c
     assert c["directions"] > 0.9 and c["oa"] > 0.85 and c["us"] < c["oa"], c
     # against the truth: the block's four faces sampled every 0.5 mm over the band, the
     # share with an OA point within 2 mm (a share of area, the figure one of directions)
     ref = block_faces(*c["band_mm"])
     assert np.abs(truth.signed_distance(ref)).max() < 0.01  # the block is where said
-    # (2026-12-06: 0.951 of the area, 0.944 reported)
+    # (2026-12-06: 0.984 of the area, 0.991 reported)
     assert abs(coverage(ref, P["P"], 2.0) - c["oa"]) < 0.05, (coverage(ref, P["P"], 2.0), c)
     assert json.loads(data.entry["coverage"]) == c == run.summary()["coverage"]
     r = subprocess.run([sys.executable, "-m", "dmdsm.host", "db", "list", "--db",
@@ -106,7 +112,7 @@ def block_faces(lo_mm, hi_mm, step_mm=0.5):
 def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emulator,
                                                                           tmp_path):
     emu = emulator(speed=4.0, scene="aluminium_block", seed=32)
-    setup(emu, tmp_path)
+    _, cal, _, _ = setup(emu, tmp_path)
     plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, "levels_mm": [14.0, 22.0]})
     (tmp_path / "plan.toml").write_text(plan.to_toml())
     path = tmp_path / "db" / "scans" / "cut.h5"
@@ -121,7 +127,8 @@ def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emula
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     whole = read_scan(path, waveforms=False)
     assert whole.entry["status"] == "complete"
-    assert sorted(set(whole.points["point_index"].tolist())) == [0, 1, 2, 3]
+    assert sorted(set(whole.points["point_index"].tolist())) == list(range(len(sweep_turns(
+        plan, cal["v"], cal["X_R"], cal["n"]))))
     # the turns stored before the cut are kept as they were
     first = cut.points["point_index"] == 0
     assert np.array_equal(whole.points["timestamp"][:first.sum()], cut.points["timestamp"][first])
@@ -155,16 +162,19 @@ def test_a_sweep_in_passes_across_the_beam_sees_flat_faces_head_on(emulator, tmp
     assert run.status == "complete" and run.stats.lost == 0
     data = read_scan(run.path, waveforms=False)
     p = data.points
-    assert sorted(set(p["point_index"].tolist())) == list(range(6))  # 3 passes of 2 turns
-    xy = {k: p["stage_position_mm"][p["point_index"] == k][0, :2] for k in range(6)}
+    turns = sweep_turns(plan, cal["v"], cal["X_R"], cal["n"])
+    k = len(turns) // 3  # turns a pass: up, down, up
+    assert sorted(set(p["point_index"].tolist())) == list(range(3 * k)) and k >= 2
+    xy = {i: p["stage_position_mm"][p["point_index"] == i][0, :2] for i in range(3 * k)}
     vxy = np.asarray(cal["v"])[:2] / np.linalg.norm(np.asarray(cal["v"])[:2])
     left = np.array([-vxy[1], vxy[0]])
-    assert np.allclose([(xy[k] - xy[0]) @ left for k in range(6)], [0, 0, 12, 12, -12, -12],
-                       atol=1e-6)
-    z = p["stage_position_mm"][:, 2] - emu.sim.scene.X_R[2]
-    for k, (lo, hi) in enumerate(((14, 16), (16, 18), (18, 16), (16, 14), (14, 16), (16, 18))):
-        zk = z[p["point_index"] == k]
-        assert abs(zk[0] - lo) < 0.1 and abs(zk[-1] - hi) < 0.1, (k, zk[0], zk[-1])
+    assert np.allclose([(xy[i] - xy[0]) @ left for i in range(3 * k)],
+                       [0] * k + [12] * k + [-12] * k, atol=1e-6)
+    z = p["stage_position_mm"][:, 2]
+    for i, t in enumerate(turns):
+        zi = z[p["point_index"] == i]
+        assert abs(zi[0] - t.z0) < 0.1 and abs(zi[-1] - t.z1) < 0.1, (i, zi[0], zi[-1], t)
+    assert turns[k].z0 == turns[k - 1].z1 > turns[0].z0  # the second pass comes down
     err = np.abs(pose_errors(p, shots))
     assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
     truth = emu.sim.truth_objects()[0]
@@ -173,7 +183,7 @@ def test_a_sweep_in_passes_across_the_beam_sees_flat_faces_head_on(emulator, tmp
     assert truth.signed_distance(object_points(sh[:, 1:4], sh[:, 4], n, X_R)).max() < -2.0
     # the coverage: the first pass's points alone against all three's, over the same band
     pts = scan_points(data)
-    first = {m: pts[m]["P"][np.isin(pts[m]["index"], [0, 1])] for m in ("oa", "us")}
+    first = {m: pts[m]["P"][pts[m]["index"] < k] for m in ("oa", "us")}
     alone = sweep_coverage(first, plan.radius_mm, plan.height_mm, run.coverage["band_mm"], 2.0)
     c = run.coverage
     # (2026-12-06: US 0.57 -> 0.94, OA 0.93 -> 1.0)

@@ -117,16 +117,16 @@ X_R = np.array([235.21, 288.17, 0.0])
 def test_the_window_is_where_the_beam_is_inside_the_bounding_cylinder(radius, height, u,
                                                                       z, back):
     """cylinder_window's (near, far) bound exactly the beam's stretch inside the cylinder
-    (radius, 1 mm above the table .. height): sampled along the beam, every point inside
+    (radius, from the table top .. height): sampled along the beam, every point inside
     lies between them and the ends are on its boundary."""
-    from dmdsm.host.scan.first_look import TABLE_CLEAR_MM, cylinder_window
+    from dmdsm.host.scan.first_look import TABLE_TOP_MM, cylinder_window
     from dmdsm.host.scan.reconstruct import table_frame
 
     S = X_R + np.array([u * radius, -(radius + back), z])
     near, far = (float(a[0]) for a in cylinder_window(S[None], V, N, X_R, radius, height))
     d = np.linspace(0.0, 400.0, 40001)
     rel = (S + d[:, None] * V - X_R) @ table_frame(N)
-    inside = (np.hypot(rel[:, 0], rel[:, 1]) <= radius) & (rel[:, 2] >= TABLE_CLEAR_MM) & (
+    inside = (np.hypot(rel[:, 0], rel[:, 1]) <= radius) & (rel[:, 2] >= TABLE_TOP_MM) & (
         rel[:, 2] <= height)
     if not inside.any():
         assert np.isnan(near) and np.isnan(far)
@@ -202,3 +202,23 @@ def test_a_follow_lines_window_starts_at_the_outline_keep_out_and_ends_past_the_
     near, far = outline_window(S, np.zeros(2), o, V, N, X_R)
     assert abs(near[0] - 8.0) < 0.4 and 28.0 + 30.0 < far[0] < 28.0 + 31.5
     assert np.isnan(near[1]) and np.isnan(far[1])
+
+
+def test_a_pulse_from_the_foot_of_the_object_is_not_read_as_an_echo_in_mid_air():
+    """The first look's lowest beams, 3 mm above the table and dipping 3.9 deg (v), meet the
+    block's foot 42 mm away, 0.2 mm above the table. The window stopped 1 mm above the table
+    (29 mm away), so that OA pulse was "beyond the far end" and read as a US echo at 21 mm:
+    a point 14 mm in front of the block, in every first look beside its corners. The window
+    reaches the table top: the pulse can be OA, and as US it is not taken."""
+    from dmdsm.host.scan.first_look import cylinder_window
+
+    r = ranger(2.0, 4.0, 0.343)
+    S = X_R + np.array([10.0, -(30.2 + 15.0), 3.0])
+    near, far = (float(a[0]) for a in cylinder_window(S[None], V, N, X_R, 30.2, 40.0))
+    assert far > 42.0 + WINDOW_MARGIN_MM  # where the beam meets the table: 44 mm
+    oa = 41.78
+    wide = {"oa": (oa, 31.0), "us": (r.other_reading_mm("oa", oa), 30.0)}
+    assert r.lone_by_window(wide, (near, far)) != "us"
+    # with the window stopping 1 mm above the table, it was
+    near1, far1 = (float(a[0]) for a in cylinder_window(S[None], V, N, X_R, 30.2, 40.0, 1.0))
+    assert far1 < 30.0 and r.lone_by_window(wide, (near1, far1)) == "us"

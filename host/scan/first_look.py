@@ -25,7 +25,9 @@ FAR_LOOK_MAX_STANDOFF_MM = 48.0
 LONE_PULSE_DB = 20.0      # a first look that saw nothing: a waveform with a pulse this strong
 LONE_PULSES_MIN = 10      # ... on at least this many waveforms and this share of them is an
 LONE_PULSES_SHARE = 0.02  # object answering in one modality (no_surface_reason)
-TABLE_CLEAR_MM = 1.0      # a first-look surface lies at least this far above the table
+TABLE_TOP_MM = 0.0        # a window reaches down to the table: the object's foot and the
+# table top reflect too (with 1 mm, a pulse from the foot of the block 42 mm away read as
+# a US echo at 21 mm, in mid-air, beside the corner in every first look)
 
 
 def _lone_pulses(snr_oa_db: np.ndarray, snr_us_db: np.ndarray, d_oa_mm: np.ndarray,
@@ -138,7 +140,7 @@ def first_look_points(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
 
 
 def cylinder_window(S: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
-                    radius_mm: float, height_mm: float, z_min_mm: float = TABLE_CLEAR_MM
+                    radius_mm: float, height_mm: float, z_min_mm: float = TABLE_TOP_MM
                     ) -> tuple[np.ndarray, np.ndarray]:
     """(near, far) beam distances (mm, (k,) each) over which the beams X = S + d v of
     sensors at S (k, 3) cross the bounding cylinder (axis X_R along n, radius_mm, heights

@@ -1,11 +1,12 @@
 """A scan plan written by ScanPlan.to_toml reads back (load_plan) as the same plan, same hash."""
 
+import math
 import string
 
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from dmdsm.host.scan.plan import MODALITIES, MODES, ScanPlan, load_plan
+from dmdsm.host.scan.plan import MAX_POINTS, MODALITIES, MODES, ScanPlan, load_plan
 
 # TOML's basic strings take any character but the control ones (to_toml escapes \ and ")
 TEXT = st.text(st.characters(blacklist_categories=("Cc", "Cs")), max_size=30)
@@ -34,6 +35,9 @@ def plans(draw: st.DrawFn) -> ScanPlan:
     if plan.mode == "sweep":  # a sweep's passes: offsets of the beam within the radius
         plan.offsets_mm = [f * plan.radius_mm for f in
                            draw(st.lists(st.floats(-0.99, 0.99), min_size=1, max_size=9))]
+        n = (max(plan.levels_mm) - min(plan.levels_mm)) / plan.step_mm * 2 * math.pi * \
+            plan.radius_mm / plan.step_mm * len(plan.offsets_mm)
+        assume(n <= MAX_POINTS)  # each pass a whole helix: the plan's point limit
     return plan
 
 

@@ -24,7 +24,8 @@ REASONS = {OK: "ok", OFF_SURFACE: "off the surface", ISOLATED: "too few neighbou
            NOT_SMOOTH: "neighbourhood not one smooth surface (kept, not tested)"}
 _MAX_ANGLES = 512   # object_points loops over distinct angles; beyond this, the same formula
 TUKEY_C = 4.685     # Tukey biweight's cut-off in robust scales
-LONE = 0.6          # a point with no neighbour within this fraction of the radius is isolated
+LONE = 0.6          # a point with no neighbour within this fraction of the radius is isolated,
+LONE_CLUSTER = 3    # and so is a cluster of at most this many, each near only the others
 
 
 def _rz(theta_deg: np.ndarray) -> np.ndarray:
@@ -280,6 +281,19 @@ def outliers(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
     return keep, reason
 
 
+def _small_clusters(idx: np.ndarray, close: np.ndarray, k: int) -> np.ndarray:
+    """(k,) True for the points of the connected groups of at most LONE_CLUSTER points
+    under "within LONE * radius" (idx: each point's neighbours, close: which of them are
+    that near)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(np.arange(k), close.shape[1])[close.ravel()]
+    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, idx[close])), shape=(k, k))
+    _, label = connected_components(graph, directed=False)
+    return np.bincount(label)[label] <= LONE_CLUSTER
+
+
 def _outlier_pass(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = None,
                   k_sigma: float = 5.0, min_neighbours: int = 8, max_neighbours: int = 32,
                   max_rejected: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
@@ -295,8 +309,10 @@ def _outlier_pass(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = N
     On a smooth surface (chi2 ~ 1) that is its own and the fit's propagated std; where the
     neighbours do not fit one smooth surface at their noise (an edge, a corner), the bound
     widens with their misfit, so the edge's own points stay and only errors well beyond the
-    misfit go. ISOLATED: fewer than min_neighbours neighbours, or none within LONE * radius_mm
-    (a point that far off a surface sees it only as a ring, which fits poorly). NOT_SMOOTH:
+    misfit go. ISOLATED: fewer than min_neighbours neighbours, or none within LONE *
+    radius_mm (a point that far off a surface sees it only as a ring, which fits poorly), or
+    only the others of a cluster of at most LONE_CLUSTER points (two gross errors side by
+    side: the fit bent to the pair and its misfit hid both). NOT_SMOOTH:
     kept, but the fit dropped more than max_rejected of its weight or its chi2 exceeds 1 by 4 of
     its stds (sqrt(2 / (n_eff - 6))), so it was tested at the wider bound.
     Kept: OK and NOT_SMOOTH. The quadratic follows a radius of 15 mm to a few um over the
@@ -316,8 +332,9 @@ def _outlier_pass(P_mm: np.ndarray, cov: np.ndarray, radius_mm: float | None = N
     dist, idx = tree.query(P, k=kq, distance_upper_bound=radius_mm, workers=-1)
     dist, idx = dist.reshape(k, kq), idx.reshape(k, kq)
     valid = np.isfinite(dist) & (idx != np.arange(k)[:, None])
-    near = np.where(valid, dist, np.inf).min(axis=1, initial=np.inf)
-    has = (valid.sum(axis=1) >= max(min_neighbours, 6)) & (near <= LONE * radius_mm)
+    close = valid & (dist <= LONE * radius_mm)
+    has = (valid.sum(axis=1) >= max(min_neighbours, 6)) & close.any(axis=1) & \
+        ~_small_clusters(idx, close, k)
     for lo in range(0, k, 20000):
         sel = np.flatnonzero(has[lo:lo + 20000]) + lo
         if len(sel) == 0:

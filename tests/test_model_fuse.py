@@ -243,6 +243,7 @@ def noisy(P, nr, sd, rng):
 @example(seed=1281, kind="sphere", R=15.0, sd=0.1, gap=1.5)  # 1.2 % not smooth (see below)
 @example(seed=723326, kind="cylinder", R=20.5, sd=0.06,  # two 0.2 mm apart, both 4.4-4.8 mm
          gap=1.0749792457894796)  # inward: the fit bent to the pair and hid both
+@example(seed=14862, kind="sphere", R=36.0, sd=0.06, gap=1.0)  # one clean point at 5 sigma
 def test_curved_surfaces_keep_every_good_point_and_lose_gross_errors(seed, kind, R, sd, gap):
     """Clean points: all kept (fewer than 2% labelled not smooth: the tightest sphere, 15 mm,
     at the sparsest 1.5 mm spacing gave 1.2 %, its quartic term over the rule's ~6.6 mm
@@ -251,12 +252,16 @@ def test_curved_surfaces_keep_every_good_point_and_lose_gross_errors(seed, kind,
     off the surface along the normal (1-5 mm where the noise is the optical one's, <= 0.1 mm):
     each of them is flagged, no good point is. A gross error is where the point lands: one
     moved 1.5 mm from its noisy place could land 0.96 mm off the surface, 4.8 sigma at
-    sd 0.2 - within the rule's 5 sigma, and not a gross error (hypothesis found one)."""
+    sd 0.2 - within the rule's 5 sigma, and not a gross error (hypothesis found one).
+    "All kept" as a 5-sigma rule can keep them: it drops a clean Gaussian point with
+    probability 5.7e-7, so one of a 16 000-point sphere about 1 % of the time (hypothesis
+    found one at 5 sigma: seed 14862); more than one in 10 000 would be the rule's fault."""
     rng = np.random.default_rng(seed)
     P, nr = curved(kind, R, gap, rng)
     Q, cov = noisy(P, nr, sd, rng)
     keep, reason = outliers(Q, cov)
-    assert keep.all() and (reason == NOT_SMOOTH).mean() < 0.02, np.bincount(reason)
+    rare = max(1, round(1e-4 * len(P)))  # clean points a 5-sigma rule may drop, at most
+    assert (~keep).sum() <= rare and (reason == NOT_SMOOTH).mean() < 0.02, np.bincount(reason)
     bad = rng.choice(len(P), 20, replace=False)
     lo = 1.0 if sd <= 0.1 else 1.5
     Q[bad] = P[bad] + nr[bad] * (rng.choice([-1, 1], 20) * rng.uniform(lo, 5, 20))[:, None]
@@ -265,7 +270,7 @@ def test_curved_surfaces_keep_every_good_point_and_lose_gross_errors(seed, kind,
     good[bad] = False
     assert not keep[bad].any(), reason[bad]
     assert np.isin(reason[bad], [OFF_SURFACE, ISOLATED]).all()
-    assert keep[good].all()
+    assert (~keep[good]).sum() <= rare
 
 
 def test_box_edges_are_kept_and_lone_points_isolated():

@@ -6,7 +6,7 @@ import sys
 import tomllib
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dmdsm.host.scan.plan import load_plan, plan_for_size
@@ -98,6 +98,8 @@ def test_plan_new_refuses_a_size_it_cannot_scan(tmp_path):
 @settings(max_examples=60, deadline=None)
 @given(w=st.floats(1, 250), d=st.floats(1, 250), h=st.floats(5, 400), round_=st.booleans(),
        mode=st.sampled_from(["step", "fly", "auto", "sweep"]))
+@example(w=1.0, d=80.0, h=100.0, round_=False, mode="sweep")  # 3 passes: over the point limit
+@example(w=1.0, d=107.0, h=218.0, round_=False, mode="sweep")  # a sweep's pitch from the width
 def test_a_plan_for_any_size_that_fits_the_scanner_loads_back_the_same(w, d, h, round_, mode):
     plan = plan_for_size("obj", (w, d, h), round_, "paper", mode)
     doc = tomllib.loads(plan.to_toml())

@@ -132,7 +132,7 @@ class ScanPlan:
         if not 0 < self.feed_mm_min <= fastest:
             raise PlanError(f"feed_mm_min must be above 0 and at most the machine's fastest "
                             f"axis, {fastest:g} mm/min (got {self.feed_mm_min:g})")
-        if self.step_mm > 2 * self.half_width_mm:
+        if self.step_mm > 2 * self.half_width_mm and self.mode != "sweep":  # (no raster)
             raise PlanError("step_mm is larger than the raster width (2 x half_width_mm)")
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int)}
         numbers.update({f"levels_mm[{i}]": x for i, x in enumerate(self.levels_mm)})
@@ -251,8 +251,8 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     middle 70 % of its width; every 4 mm step and shoot, every 2 mm fly; the modality given,
     else the material's (modality_for); a sweep of an object that is not round in three
     passes, the beam through the axis and a quarter of the width to either side of it (its
-    flat faces seen head on away from their middles). Edit the file for more levels or a
-    finer step (docs/scanning.md)."""
+    flat faces seen head on away from their middles; one where three would pass the plan's
+    point limit). Edit the file for more levels or a finer step (docs/scanning.md)."""
     modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
@@ -278,7 +278,8 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
                     levels_mm=levels, angles_deg=[0.0, 90.0, 180.0, 270.0],
                     half_width_mm=max(mm(0.35 * w), 0.1),
-                    step_mm=min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
+                    step_mm=AUTO_SPACING_MM if mode == "sweep" else  # the helix's pitch
+                    min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
                     **({"average": FLY_AVERAGE} if mode in ("fly", "sweep") else
                        {"average": AUTO_AVERAGE, "feed_mm_min": AUTO_FEED_MM_MIN}
@@ -287,6 +288,10 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     if mode == "sweep" and not round_:
         quarter = mm(min(max(w, d) / 4, 0.9 * plan.radius_mm))
         plan.offsets_mm = [0.0, quarter, -quarter]
+        try:
+            plan.validate()
+        except PlanError:  # three passes of a tall object over the point limit: one
+            plan.offsets_mm = [0.0]
     plan.validate()
     return plan
 

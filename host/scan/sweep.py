@@ -222,11 +222,10 @@ def sweep_coverage(points_mm: dict[str, np.ndarray], radius_mm: float, height_mm
     closed = np.isfinite(r[:, rows])
     cells = closed.size
     # each band cell's radius: its own, else the nearest closed cell's of its column
-    have = np.isfinite(r)
     jj = np.arange(r.shape[1])
-    dist = np.where(have[:, None, :], np.abs(jj[None, :, None] - jj[None, None, :]), np.inf)
-    near = np.argmin(dist, axis=2)                       # (nphi, nz): nearest closed row
-    rr = np.take_along_axis(r, near, axis=1)[:, rows]    # NaN where a column has none
+    dist = np.where(np.isfinite(r)[:, None, :],  # (nphi, band rows, nz): the band's alone
+                    np.abs(jj[rows][None, :, None] - jj[None, None, :]), np.inf)
+    rr = np.take_along_axis(r, np.argmin(dist, axis=2), axis=1)  # NaN: a column with none
     i, j = np.nonzero(np.isfinite(rr))
     phi = np.radians((i + 0.5) * out.phi_step_deg)
     ref = np.column_stack([rr[i, j] * np.cos(phi), rr[i, j] * np.sin(phi), mid[rows][j]])

@@ -30,15 +30,30 @@ PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[14.0, 20.0], angles_deg=[
             step_mm=2.0, average=12, mode="sweep", feed_mm_min=9000.0)
 
 
-def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emulator,
-                                                                           tmp_path):
-    emu = emulator(speed=4.0, scene="aluminium_block", seed=31)
+def swept(emulator, tmp_path, seed, **plan_keys):
+    """A sweep of the block (PLAN with plan_keys) in process on a fresh emulator, complete and
+    nothing lost: (emu, cal, plan, the true shots, the run, its file read back)."""
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=seed)
     ranging, cal, text, _ = setup(emu, tmp_path)
-    plan = ScanPlan("aluminium_block", "aluminium", **PLAN)
+    plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, **plan_keys})
     shots = record_poses(emu.sim)
     run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
     assert run.status == "complete" and run.stats.lost == 0
-    data = read_scan(run.path, waveforms=False)
+    return emu, cal, plan, shots, run, read_scan(run.path, waveforms=False)
+
+
+def clearance_mm(emu, cal, shots):
+    """The least signed distance (mm, negative outside) of the sensor's true positions at
+    the shots from the true block."""
+    sh = np.array(shots)
+    n, X_R = np.asarray(cal["n"]), np.asarray(cal["X_R"])
+    truth = emu.sim.truth_objects()[0]
+    return -truth.signed_distance(object_points(sh[:, 1:4], sh[:, 4], n, X_R)).max()
+
+
+def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emulator,
+                                                                           tmp_path):
+    emu, cal, plan, shots, run, data = swept(emulator, tmp_path, 31)
     p = data.points
     # the band 14 -> 20 mm at every depth from the cylinder to the axis: the beam dips
     # (v), so Z climbs from 14 mm plus the dip at the standoff to 20 mm plus the dip at the
@@ -56,7 +71,6 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     # each waveform where the mean of its shots' true pose was: Z within the stage's 2 um
     # scatter and a Z step, the table within one of its steps (0.1125 deg) and its 0.01 deg
     # angle scatter
-    sh = np.array(shots)
     err = np.abs(pose_errors(p, shots))
     assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
     # the laser busy: the waveforms stored from the first to the last turn's cover their
@@ -64,9 +78,8 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     ts = np.sort(p["timestamp"].astype(float)) / 240e6
     assert laser_duty(len(ts), plan.average, 1000.0, ts[-1] - ts[0]) > 0.9
     # the sensor never came within the keep-out margin (2 mm) of the true block
+    assert clearance_mm(emu, cal, shots) > 2.0
     truth = emu.sim.truth_objects()[0]
-    n, X_R = np.asarray(cal["n"]), np.asarray(cal["X_R"])
-    assert truth.signed_distance(object_points(sh[:, 1:4], sh[:, 4], n, X_R)).max() < -2.0
     # and the points lie on its surface, all the way round: every 10-degree sector of the
     # four faces about the axis has points (a corner may have none: met at grazing
     # incidence, or an average there straddles two faces and is dropped)
@@ -153,14 +166,8 @@ def test_a_sweep_in_passes_across_the_beam_sees_flat_faces_head_on(emulator, tmp
     faces are seen head on away from their middles, where a beam through the axis meets them
     obliquely and US (within ~15 deg of head on) has no echo: the US coverage rises, every
     waveform still placed where its shots were and the sensor still clear of the block."""
-    emu = emulator(speed=4.0, scene="aluminium_block", seed=34)
-    ranging, cal, text, _ = setup(emu, tmp_path)
-    plan = ScanPlan("aluminium_block", "aluminium",
-                    **{**PLAN, "levels_mm": [14.0, 18.0], "offsets_mm": [0.0, 12.0, -12.0]})
-    shots = record_poses(emu.sim)
-    run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
-    assert run.status == "complete" and run.stats.lost == 0
-    data = read_scan(run.path, waveforms=False)
+    emu, cal, plan, shots, run, data = swept(emulator, tmp_path, 34, levels_mm=[14.0, 18.0],
+                                             offsets_mm=[0.0, 12.0, -12.0])
     p = data.points
     turns = sweep_turns(plan, cal["v"], cal["X_R"], cal["n"])
     k = len(turns) // 3  # turns a pass: up, down, up
@@ -177,10 +184,7 @@ def test_a_sweep_in_passes_across_the_beam_sees_flat_faces_head_on(emulator, tmp
     assert turns[k].z0 == turns[k - 1].z1 > turns[0].z0  # the second pass comes down
     err = np.abs(pose_errors(p, shots))
     assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
-    truth = emu.sim.truth_objects()[0]
-    sh = np.array(shots)
-    n, X_R = np.asarray(cal["n"]), np.asarray(cal["X_R"])
-    assert truth.signed_distance(object_points(sh[:, 1:4], sh[:, 4], n, X_R)).max() < -2.0
+    assert clearance_mm(emu, cal, shots) > 2.0
     # the coverage: the first pass's points alone against all three's, over the same band
     pts = scan_points(data)
     first = {m: pts[m]["P"][pts[m]["index"] < k] for m in ("oa", "us")}

@@ -248,13 +248,11 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
-        elif plan.mode == "sweep":  # each turn's window: its pass's offset moves it
-            near, far = cylinder_window(np.array([[t.x, t.y, t.z0] for t in turns]), v, n,
-                                        X_R, plan.radius_mm, plan.height_mm)
-            windows = {t.index: (float(a), float(b)) for t, a, b in zip(turns, near, far)
-                       if np.isfinite([a, b]).all()}
+        elif plan.mode == "sweep":  # each shot's window, where it was: Z climbs a turn
+            def window_of(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                return cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
             run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,
-                                       ranger, machine, progress, windows)
+                                       ranger, machine, progress, window_of)
             run.coverage = swept_coverage(writer, plan, turns, calibration)
         else:
             run.stats = run_scan(stage, sensor, plan, points, writer, ranger, progress)

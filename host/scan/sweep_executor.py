@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,6 +34,8 @@ from .sweep import Turn, counted_steps, passes, sweep_feed_mm_min
 SYNC_A = SPEC.enums["sync_input"]["a"]  # the table's STEP line's motion-sync input
 STALL_S = 3.0  # no table step counted for this long (s, device clock): the sweep stops
 NO_WAVEFORM_S = 30.0  # no waveform for this long (s, host clock): the sweep stops
+# sensor positions (k, 3, mm) -> (near, far) beam distances (mm, (k,) each, NaN: none)
+WindowOf = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 class SweepRun:
@@ -42,12 +45,13 @@ class SweepRun:
     def __init__(self, stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                  n_planned: int, writer: ScanWriter, ranger: PointRanger,
                  machine: MachineLimits, progress: Progress | None = None,
-                 windows_mm: dict[int, tuple[float, float]] | None = None) -> None:
-        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). windows_mm:
-        by turn index, the (near, far) beam distances where its beam crosses the bounding
-        cylinder (the ranger reads a lone pulse by it)."""
+                 window_of: WindowOf | None = None) -> None:
+        """Syncs the sensor's clock (16 exchanges); nothing moves until run(). window_of:
+        sensor positions (k, 3, mm) -> the (near, far) beam distances (mm, (k,) each, NaN
+        where none) where their beams cross the bounding cylinder (the ranger reads a lone
+        pulse by it)."""
         self.stage, self.sensor, self.plan, self.turns = stage, sensor, plan, turns
-        self.windows = windows_mm or {}
+        self.window_of = window_of
         self.n_planned, self.writer, self.ranger, self.machine = n_planned, writer, ranger, \
             machine
         self.progress = progress
@@ -236,7 +240,7 @@ class SweepRun:
             t = dict(timing or dict.fromkeys(PHASES, 0.0))
             t2 = time.monotonic()
             values = _range(rows, turn, self.ranger, 1, self.unix_minus_monotonic, self.plan,
-                            self.windows.get(turn.index))
+                            self.window_of)
             t["ranging"] = time.monotonic() - t2
             values["phase_time_s"] = np.tile([t[k] / n for k in PHASES], (n, 1))
             self.stats.store(lambda r=rows, v=values: self.writer.append_many(r["samples"], **v),
@@ -247,16 +251,23 @@ class SweepRun:
 
 def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
            unix_minus_monotonic: float, plan: ScanPlan,
-           window: tuple[float, float] | None = None) -> dict:
-    """Distances and the file's per-row values of a kept turn; a lone pulse continues the
-    surface of the waveform before it (the object turns under the beam, never jumps), or
-    is read by the window where the beam crosses the bounding cylinder (the first look's
-    rule, host/scan/first_look.py)."""
+           window_of: WindowOf | None = None) -> dict:
+    """Distances and the file's per-row values of a kept turn; a lone pulse is read by the
+    window where its own beam crosses the bounding cylinder (the first look's rule,
+    host/scan/first_look.py), at the height of its shot: Z climbs a turn, and a dipping
+    beam's far end moves with it (at the turn's start it would end ~15 mm nearer on a
+    wide object, and an OA pulse from beyond that end read as a US echo at half its
+    distance looked certain); else it continues the surface of the waveform before it (the
+    object turns under the beam, never jumps)."""
     n = len(rows["z"])
     out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
                                             "snr_us_db")}
+    pos = np.column_stack([np.full(n, turn.x), np.full(n, turn.y), rows["z"]])
+    near, far = window_of(pos) if window_of is not None else (np.full(n, np.nan),) * 2
     previous = None
     for i in range(n):
+        window = (float(near[i]), float(far[i])) if np.isfinite([near[i], far[i]]).all() \
+            else None
         r = ranger(rows["samples"][i], int(rows["trigger_phase"][i]), 0, previous, window)
         previous = surface(r)
         for m in ("oa", "us"):
@@ -267,7 +278,6 @@ def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
     for m in ("oa", "us"):  # an average across a depth edge belongs to neither surface
         d = np.asarray(out[f"distance_{m}_mm"], dtype=float)
         out[f"distance_{m}_mm"] = np.where(straddles(d, arc, 3 * plan.step_mm), np.nan, d)
-    pos = np.column_stack([np.full(n, turn.x), np.full(n, turn.y), rows["z"]])
     return {"stage_position_mm": pos, "theta_deg": rows["theta"],
             "level": np.full(n, turn.index), "column": np.arange(n),
             "angle_index": np.zeros(n, int), "received": np.ones(n, bool),
@@ -281,9 +291,10 @@ def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
 def run_sweep_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, turns: list[Turn],
                    n_planned: int, writer: ScanWriter, ranger: PointRanger,
                    machine: MachineLimits, progress: Progress | None = None,
-                   windows_mm: dict[int, tuple[float, float]] | None = None) -> ScanStats:
+                   window_of: WindowOf | None = None) -> ScanStats:
     """Measure the turns after the last one in the file; returns what this run did
     (progress: points in the file, n_planned, phase times s, after each stored turn;
-    windows_mm: by turn, where its beam crosses the bounding cylinder, for lone pulses)."""
+    window_of: where the beams of sensors at given positions cross the bounding cylinder,
+    for lone pulses)."""
     return SweepRun(stage, sensor, plan, turns, n_planned, writer, ranger, machine,
-                    progress, windows_mm).run()
+                    progress, window_of).run()

@@ -107,6 +107,37 @@ def test_a_one_modality_plan_reads_its_lone_pulses_only_within_the_window():
     assert abs(us(wave, phase, 0, None, window=(10.0, 60.0))["us"][0] - truth) < 0.5
 
 
+def test_a_sweep_of_a_material_that_answers_in_both_reads_a_lone_pulse_as_oa():
+    """Plastic 30 mm away at 40 deg (an OA pulse, no echo) where the window starts at 10 mm
+    cannot be read by the window (a US echo from 15 mm could be it: the pear's foot, 25-35
+    mm behind an 8 mm standoff, gave 7 % coverage so); a sweep of plastic reads it as OA (a
+    US echo only comes back head on, where plastic's OA pulse never fails), within the
+    window only. Not an auto scan (its outline moves the keep-out), nor a material that
+    may answer in US alone, nor no material: steel's echo would be read as OA at twice its
+    distance."""
+    from dmdsm.host.scan.plan import ScanPlan, point_ranger
+
+    wave, phase, truth, both = cell_waveform("plastic", 30.0, 40.0)
+
+    def plan(mode, material):
+        return ScanPlan("x", material, radius_mm=40.0, height_mm=40.0, levels_mm=[10.0],
+                        angles_deg=[0.0], mode=mode)
+
+    r = point_ranger(plan("sweep", "Plastic"), both.setup, both.n, both.tick_hz)
+    seen = r(wave, phase, 0, None, window=(10.0, 60.0))
+    assert abs(seen["oa"][0] - truth) < 0.5 and np.isnan(seen["us"][0])
+    beyond = r(wave, phase, 0, None, window=(32.0, 60.0))  # nearer than the window
+    assert np.isnan(beyond["oa"][0]) and np.isnan(beyond["us"][0])
+    assert np.isnan(r(wave, phase, 0, None)["oa"][0])  # no window: not read
+    for mode, material in (("auto", "plastic"), ("fly", "plastic"), ("sweep", ""),
+                           ("sweep", "steel"), ("sweep", "ceramic")):
+        other = point_ranger(plan(mode, material), both.setup, both.n, both.tick_hz)
+        assert not other.lone_is_oa, (mode, material)
+    wave, phase, truth, _ = cell_waveform("steel", 20.0, 0.0)  # why: steel's lone echo
+    misread = r(wave, phase, 0, None, window=(10.0, 60.0))["oa"][0]
+    assert abs(misread - both.other_reading_mm("us", truth)) < 1.0
+
+
 V = np.array([0.0656, 0.9955, -0.0678]) / np.linalg.norm([0.0656, 0.9955, -0.0678])
 N = np.array([-0.0007, 0.0022, 0.9999]) / np.linalg.norm([-0.0007, 0.0022, 0.9999])
 X_R = np.array([235.21, 288.17, 0.0])

@@ -32,12 +32,18 @@ class PointRanger:
     # window is given (where the object can be along the beam), lone_by_window reads the
     # pulses it can tell apart: a neighbour (or the outline's prediction) can mislead, the
     # window cannot (an OA pulse 16 mm away reads as a US echo at ~8 mm, where an auto
-    # line expects the surface).
+    # line expects the surface). Between the two, with lone_is_oa (the scan layer's: a
+    # sweep of an object whose declared material answers in both), a lone pulse within the
+    # window is OA: a lone US echo would mean a surface met head on whose OA pulse failed.
 
     def __init__(self, setup: RangingSetup, n_samples: int, tick_hz: float,
-                 modality: str, depth_mm: tuple[float, float], pair_mm: float = 2.0) -> None:
+                 modality: str, depth_mm: tuple[float, float], pair_mm: float = 2.0,
+                 lone_is_oa: bool = False) -> None:
         """setup: templates and t0, c; n_samples per waveform; tick_hz of trigger phases;
-        modality "both", "oa" or "us"; depth_mm (lo, hi) where echoes are searched (mm)."""
+        modality "both", "oa" or "us"; depth_mm (lo, hi) where echoes are searched (mm);
+        lone_is_oa: the object answers in both (its declared material), so with "both" a
+        lone pulse the window cannot read is OA if within the window (see __call__)."""
+        self.lone_is_oa = lone_is_oa
         self.setup = setup
         self.tick_hz = tick_hz
         self.modality = modality
@@ -112,9 +118,9 @@ class PointRanger:
         """modality -> (distance mm or NaN, SNR dB); previous: (surface distance mm,
         {modality: SNR dB}) of the previous point on the same scan line, if any; window:
         (near, far) beam distances (mm) where the beam crosses the object's bounding volume,
-        if known (a lone pulse is read by lone_by_window first, then by continuity with
-        previous; modality "both" only: "oa" and "us" read every lone pulse as theirs,
-        searched for within the window only)."""
+        if known (a lone pulse is read by lone_by_window first, then as OA within the
+        window if lone_is_oa, then by continuity with previous; modality "both" only: "oa"
+        and "us" read every lone pulse as theirs, searched for within the window only)."""
         x = waveform.astype(np.float32)[None, :] - 32768.0
         ph = phase_ticks / self.tick_hz
         mods = [m for m in ("oa", "us") if m in self.filters]
@@ -155,6 +161,14 @@ class PointRanger:
             lone = self.modality
         else:  # the window first: where it decides, it cannot be wrong; then continuity
             lone = self.lone_by_window(wide, window) if window is not None else None
+            if lone is None and self.lone_is_oa and window is not None:
+                # an object that answers in both: a US echo comes back only within ~15 deg
+                # of head on, where its OA pulse never fails (docs/scanning.md, "What the
+                # sensor ranges well"), so a lone pulse is OA (oblique incidence), where
+                # the window allows it
+                d = wide.get("oa", (np.nan, 0.0))[0]
+                if window[0] - WINDOW_MARGIN_MM <= d <= window[1] + WINDOW_MARGIN_MM:
+                    lone = "oa"
             if lone is None and previous is not None and np.isfinite(previous[0]):
                 near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
                         and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]

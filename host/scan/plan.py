@@ -231,6 +231,8 @@ AUTO_FEED_MM_MIN = 9000.0  # its moves between lines: 150 mm/s (Z and A at their
 
 US_ONLY_MATERIALS = ("glass", "steel")  # no OA pulse: the laser is reflected, not absorbed
 OA_ONLY_MATERIALS = ("foam",)           # no US echo back: the foam soaks the sound up
+# both: an OA pulse wherever a US echo comes back (US within ~15 deg of head on, OA to 30-60)
+BOTH_MATERIALS = ("aluminium", "plastic", "paper", "apple", "graphite")
 
 
 def modality_for(material: str) -> str:
@@ -299,8 +301,14 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
 def point_ranger(plan: ScanPlan, setup: RangingSetup, n_samples: int, tick_hz: float
                  ) -> PointRanger:
     """The ranger of this plan's waveforms (n_samples each, trigger phases in ticks at
-    tick_hz): its modality, gated to its depth range (ScanPlan.depth_gate_mm)."""
-    return PointRanger(setup, n_samples, tick_hz, plan.modality, plan.depth_gate_mm())
+    tick_hz): its modality, gated to its depth range (ScanPlan.depth_gate_mm); a sweep of
+    a material that answers in both reads a lone pulse as OA where its window allows (its
+    path is fixed by the plan: no reading moves the keep-out, as an auto scan's outline
+    does, where a US echo read as OA would put the surface twice as far)."""
+    lone_is_oa = plan.mode == "sweep" and plan.modality == "both" and \
+        plan.material.strip().lower() in BOTH_MATERIALS
+    return PointRanger(setup, n_samples, tick_hz, plan.modality, plan.depth_gate_mm(),
+                       lone_is_oa=lone_is_oa)
 
 
 MAX_POINTS = 200_000  # ~4 h of step and shoot; bounds the memory and time of a plan's check

@@ -59,6 +59,15 @@ def test_counted_steps_are_the_steps_made_whatever_the_bursts(edges, n_avg):
         if any(f <= lo and hi <= la for f, la, _ in bursts) or \
                 any(la <= lo and hi < nxt for (_, la, _), nxt in zip(bursts, starts[1:])):
             assert ok[i], (i, lo, hi, bursts)
+    # a sweep's (at_rest=False): the same counts, but none placed at rest between bursts
+    # (Z steps to the next ring there), only within one or before the first
+    moving = counted_steps(ts, sums, n_avg, PERIOD, bursts, QUIET, at_rest=False)
+    placed = np.isfinite(moving)
+    assert np.array_equal(moving[placed], got[placed]) and not np.any(placed & ~ok)
+    for i in np.flatnonzero(placed):
+        lo, hi = ts[i], ts[i] + (n_avg - 1) * PERIOD
+        assert hi < bursts[0][0] or any(f <= lo and hi <= la + QUIET / 2
+                                        for f, la, _ in bursts), (i, lo, hi, bursts)
 
 
 def test_place_on_move_puts_every_axis_at_its_share():
@@ -73,7 +82,7 @@ def test_a_waveform_with_steps_but_no_burst_reported_is_not_placed():
     assert got[0] == 0 and np.isnan(got[1])
 
 
-def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
+def test_a_sweeps_rings_slice_the_band_reverse_the_table_and_aim_at_the_axis():
     from dmdsm.host.scan.plan import ScanPlan, plan_for_size
     from dmdsm.host.scan.sweep import sweep_feed_mm_min, sweep_points, sweep_turns
     from dmdsm.marlin_patch import load_machine
@@ -86,8 +95,10 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     turns = sweep_turns(plan, v, X_R)
     assert len(turns) == 4
     assert [(t.a0, t.a1) for t in turns] == [(0.0, 360.0), (360.0, 0.0)] * 2
-    assert turns[0].z0 == X_R[2] + 4.5 and turns[-1].z1 == X_R[2] + 12.5
-    assert all(a.z1 == b.z0 for a, b in zip(turns, turns[1:]))
+    # flat rings at the middles of four 2 mm slices of the band: every height within 1 mm
+    # of one (a helix that reverses leaves two turns 4 mm apart where it reverses)
+    assert all(t.z0 == t.z1 and t.pitch == 2.0 for t in turns)
+    assert [t.z0 - X_R[2] for t in turns] == pytest.approx([5.5, 7.5, 9.5, 11.5])
     # the beam from the sensor passes through the table axis, standoff_mm outside the
     # bounding cylinder
     S = np.array([turns[0].x, turns[0].y])
@@ -95,8 +106,8 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     off = X_R[:2] - S
     assert abs(u[0] * off[1] - u[1] * off[0]) < 1e-9
     assert np.linalg.norm(off) == pytest.approx(plan.radius_mm + plan.standoff_mm)
-    # Z climbs the pitch over a turn at 90 deg/s: F is Z's speed (mm/min)
-    assert sweep_feed_mm_min(turns[0], 90.0) == pytest.approx(2.0 / 4.0 * 60.0)
+    # a ring at 90 deg/s: F is the table's speed (deg/min)
+    assert sweep_feed_mm_min(turns[0], 90.0) == 90.0 * 60.0
     pts = sweep_points(plan, turns, 90.0)
     assert len(pts) == plan.n_points() == 4 * 333
     m = load_machine()
@@ -106,18 +117,20 @@ def test_a_sweeps_turns_climb_the_band_reverse_the_table_and_aim_at_the_axis():
     assert flat.z0 == flat.z1 and sweep_feed_mm_min(flat, 90.0) == 90.0 * 60.0
     assert m.max_feedrate[m.axis("A")] == 90
     # a beam dipping 0.02 (mm a mm) meets the cylinder's surface 0.16 mm below the sensor and
-    # the axis 0.84 mm below: the climb starts 0.16 mm higher and ends 0.84 mm higher, so
-    # every surface between them is met over the whole band (here one more turn)
+    # the axis 0.84 mm below: the rings' slices start 0.16 mm higher and end 0.84 mm higher,
+    # so every surface between them is met over the whole band (here one more ring)
     dip = np.array([0.05, 0.99, -0.02])
     rise = dip[2] / np.linalg.norm(dip)
     turns = sweep_turns(plan, dip, X_R)
-    assert turns[0].z0 == pytest.approx(X_R[2] + 4.5 - rise * plan.standoff_mm)
-    assert turns[-1].z1 == pytest.approx(X_R[2] + 12.5 - rise * (plan.standoff_mm + 34.0))
-    assert len(turns) == 5 and all(t.z1 - t.z0 <= 2.0 for t in turns)
-    for S_z in (turns[0].z0, turns[-1].z1):  # the heights the beam meets at the two depths
+    bottom, top = turns[0].z0 - turns[0].pitch / 2, turns[-1].z1 + turns[-1].pitch / 2
+    assert bottom == pytest.approx(X_R[2] + 4.5 - rise * plan.standoff_mm)
+    assert top == pytest.approx(X_R[2] + 12.5 - rise * (plan.standoff_mm + 34.0))
+    assert len(turns) == 5 and all(0 < t.pitch <= 2.0 for t in turns)
+    assert np.allclose(np.diff([t.z0 for t in turns]), turns[0].pitch)
+    for S_z in (bottom, top):  # the heights the beam meets at the two depths
         for d in (plan.standoff_mm, plan.standoff_mm + 34.0):
             h = S_z - X_R[2] + rise * d
-            assert (h <= 4.5 + 1e-9) if S_z == turns[0].z0 else (h >= 12.5 - 1e-9)
+            assert (h <= 4.5 + 1e-9) if S_z == bottom else (h >= 12.5 - 1e-9)
 
 
 def test_a_sweep_in_passes_goes_up_down_and_up_offset_across_the_beam_outside_the_cylinder():
@@ -137,10 +150,9 @@ def test_a_sweep_in_passes_goes_up_down_and_up_offset_across_the_beam_outside_th
     turns = sweep_turns(plan, v, X_R)
     groups = passes(turns)
     assert [len(g) for g in groups] == [2, 2, 2] and [t.index for t in turns] == list(range(6))
-    assert [(t.z0 - X_R[2], t.z1 - X_R[2]) for t in turns] == \
-        [(4.5, 6.5), (6.5, 8.5), (8.5, 6.5), (6.5, 4.5), (4.5, 6.5), (6.5, 8.5)]
+    assert [t.z0 - X_R[2] for t in turns] == pytest.approx([5.5, 7.5, 7.5, 5.5, 5.5, 7.5])
     assert [(t.a0, t.a1) for t in turns] == [(0.0, 360.0), (360.0, 0.0)] * 3
-    assert all(a.z1 == b.z0 and a.a1 == b.a0 for a, b in zip(turns, turns[1:]))
+    assert all(a.a1 == b.a0 for a, b in zip(turns, turns[1:]))
     u = v[:2] / np.linalg.norm(v[:2])
     for g, d in zip(groups, plan.offsets_mm):
         rel = X_R[:2] - np.array([g[0].x, g[0].y])

@@ -34,7 +34,7 @@ class PlanError(ValueError):
 
 
 MAX_SETTLE_S = 60.0  # s of dwell per point a plan may ask for
-MAX_OFFSETS = 9      # a sweep's passes at most (each a whole helix)
+MAX_OFFSETS = 9      # a sweep's passes at most (each a whole stack of rings)
 
 
 @dataclass
@@ -67,7 +67,7 @@ class ScanPlan:
     max_incidence_deg: float = 45.0
     max_angles: int = 16
     rescan_budget_s: float = 60.0    # lines scanned again for the holes left, in s at most
-    # sweep: one pass of the helix per offset (mm) of the beam from the table axis, across
+    # sweep: one pass of rings per offset (mm) of the beam from the table axis, across
     # the beam in the table plane: a flat face seen head on away from its middle
     offsets_mm: list[float] = field(default_factory=lambda: [0.0])
 
@@ -280,7 +280,7 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     plan = ScanPlan(object_id, material=material, radius_mm=mm(radius + 1.0), height_mm=mm(h),
                     levels_mm=levels, angles_deg=[0.0, 90.0, 180.0, 270.0],
                     half_width_mm=max(mm(0.35 * w), 0.1),
-                    step_mm=AUTO_SPACING_MM if mode == "sweep" else  # the helix's pitch
+                    step_mm=AUTO_SPACING_MM if mode == "sweep" else  # the rings' pitch
                     min(4.0 if mode == "step" else 2.0, 2 * max(mm(0.35 * w), 0.1)),
                     modality=modality, mode=mode,
                     **({"average": FLY_AVERAGE} if mode in ("fly", "sweep") else

@@ -97,7 +97,7 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
     elif plan.mode == "fly":  # the whole swept path, run-ups and run-outs included
         targets, labels = fly_path(points, plan, machine)
         check_path(targets, labels, None, machine, zones)
-    elif plan.mode == "sweep":  # the helix: straight in X, Y, Z from turn to turn
+    elif plan.mode == "sweep":  # the rings: straight in X, Y, Z from turn to turn
         turns = sweep_turns(plan, v, X_R, n)
         points = sweep_points(plan, turns, table_speed_deg_s(
             plan, machine.max_feedrate[machine.axis("A")]))
@@ -127,7 +127,7 @@ def sweep_path(turns: list[Turn]) -> tuple[list[np.ndarray], list[str]]:
     targets = [np.array([turns[0].x, turns[0].y, turns[0].z0])]
     labels = ["turn 0's start"]
     for t in turns:
-        if not np.array_equal(targets[-1], [t.x, t.y, t.z0]):  # a new pass: across the beam
+        if not np.array_equal(targets[-1], [t.x, t.y, t.z0]):  # up to a ring, or across
             targets.append(np.array([t.x, t.y, t.z0]))
             labels.append(f"turn {t.index}'s start")
         targets.append(np.array([t.x, t.y, t.z1]))
@@ -278,9 +278,11 @@ def swept_coverage(writer: ScanWriter, plan: ScanPlan, turns: list[Turn], calibr
                    ) -> dict:
     """A sweep's coverage of its band (sweep.sweep_coverage) from every point in its file,
     at the auto plans' spacing; with the band (object-frame heights, mm): from the lowest
-    turn's bottom to the highest one's top, where the beam crosses them at every radius."""
+    ring's bottom to the highest one's top (each pitch / 2 about its Z), where the beam
+    crosses them at every radius."""
     v, n, X_R = (np.asarray(calibration[k], float) for k in ("v", "n", "X_R"))
-    z = [h for t in turns for h in (t.z0, t.z1)]
+    z = [h for t in turns
+         for h in (min(t.z0, t.z1) - t.pitch / 2, max(t.z0, t.z1) + t.pitch / 2)]
     x, y = turns[0].x, turns[0].y  # the first pass's (the beam through the axis: offset 0)
     first = beam_heights_mm(np.array([x, y, min(z)]), v, n, X_R, plan.radius_mm)
     last = beam_heights_mm(np.array([x, y, max(z)]), v, n, X_R, plan.radius_mm)

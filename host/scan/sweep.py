@@ -1,9 +1,9 @@
 """Table sweeps: the turns, and each shot placed by the table's counted steps.
 
 A sweep (plan mode "sweep") is how turntable scanners scan: the sensor stands outside the
-object's bounding cylinder, its beam through the table axis, and the table turns under it
-while Z climbs, one turn per G1 (a helix of pitch step_mm), so the laser is never idle
-between lines. Its shots are placed by the table's steps.
+object's bounding cylinder, its beam through the table axis, and the table turns under it,
+one turn per G1 at one height (a ring, step_mm above the last), so the laser is idle only
+while the table reverses. Its shots are placed by the table's steps.
 
 The sensor board counts the STEP pulses of the stage's X and table (A) lines on two sync
 inputs; each waveform carries, per input, the pulses of the open burst made before each of
@@ -37,7 +37,7 @@ from .plan import Point, ScanPlan
 
 def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int,
                   period_ticks: float, bursts: Sequence[tuple[int, int, int]],
-                  quiet_ticks: float) -> np.ndarray:
+                  quiet_ticks: float, at_rest: bool = True) -> np.ndarray:
     """Each waveform's mean count of one input's steps since the first of `bursts` began.
 
     timestamps: device ticks of each waveform's first shot; sync_steps: that input's count
@@ -46,8 +46,9 @@ def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int
     last_edge, edges) of that input's bursts since the arm, in ticks; quiet_ticks: the
     board's sync_quiet_ms in ticks. Placed: a waveform whose shots all fall before the
     first burst, within one burst (from its first edge to half the quiet time after its
-    last), or after one and before the next (the axis at rest); NaN otherwise (its shots
-    straddle a burst's start, or its end and the board's closing of it)."""
+    last), or after one and before the next (the axis at rest; unless at_rest is False: a
+    sweep's table rests while Z steps to the next ring); NaN otherwise (its shots straddle a
+    burst's start, or its end and the board's closing of it)."""
     ts = np.asarray(timestamps, dtype=np.float64)
     counts = np.asarray(sync_steps, dtype=np.float64)
     out = np.full(len(ts), np.nan)
@@ -67,7 +68,7 @@ def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int
     out[inside] = prior[kk[inside]] + counts[inside] / n_average
     # at rest after a burst (before the next): every shot counts the whole burst while it
     # is open and nothing once it is closed, and the steps made are the burst's all along
-    rest = ok & ~inside & (ts >= last[kk]) & (end < nxt)
+    rest = ok & ~inside & (ts >= last[kk]) & (end < nxt) & at_rest
     whole = np.isclose(np.mod(counts, np.maximum(edges[kk], 1)), 0)
     rest &= whole & (counts <= n_average * edges[kk])
     out[rest] = prior[kk[rest]] + edges[kk[rest]]
@@ -88,8 +89,9 @@ def place_on_move(start: np.ndarray, delta: np.ndarray, steps_done: np.ndarray,
 
 @dataclass(frozen=True)
 class Turn:
-    """One turn of a sweep: the sensor at (x, y) mm (the stage frame) while Z climbs from z0
-    to z1 mm and the table turns from a0 to a1 deg, in one G1 (docs/scanning.md)."""
+    """One turn of a sweep: the sensor at (x, y) mm (the stage frame) while Z goes from z0 to
+    z1 mm (a sweep's rings: z0 == z1) and the table turns from a0 to a1 deg, in one G1
+    (docs/scanning.md); pitch: the heights (mm) a ring stands for, z0 +- pitch / 2."""
 
     index: int
     x: float
@@ -98,6 +100,7 @@ class Turn:
     z1: float
     a0: float
     a1: float
+    pitch: float = 0.0
 
     def steps(self, spu: Sequence[float]) -> tuple[int, int]:
         """(Z steps, table steps) of the move, as Marlin rounds each end to whole steps."""
@@ -108,16 +111,19 @@ class Turn:
 def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
                 n: np.ndarray | None = None) -> list[Turn]:
     """The sweep's turns: the sensor standoff_mm outside the bounding cylinder, its beam
-    through the table axis; Z climbing step_mm a turn (at most: a whole number of turns)
-    over the heights that put the beam on every surface between the cylinder and the axis
-    within the band of levels_mm (a beam that dips or climbs along the table axis n meets
-    a surface at the axis that much below or above the sensor: the climb starts and ends
-    so much later; one flat turn with one level and a level beam); the table from 0 to 360 deg
-    and back, turn after turn (A stays within one revolution). One pass of the helix per
-    offset in plan.offsets_mm (mm): the sensor moved that far across the beam in the table
-    plane (+: to the beam's left seen from above), the passes climbing and descending in
-    turn, so one pass ends where the next begins but for the offset (a move across the
-    beam, outside the cylinder)."""
+    through the table axis; one flat turn (a ring) every step_mm at most (a whole number of
+    them, each standing for pitch mm of height: rings at the middles of equal slices) over
+    the heights that put the beam on every surface between the cylinder and the axis within
+    the band of levels_mm (a beam that dips or climbs along the table axis n meets a surface
+    at the axis that much below or above the sensor: the rings start and end so much later;
+    one ring with one level and a level beam); the table from 0 to 360 deg and back, turn
+    after turn (A stays within one revolution), Z stepping to the next ring while the table
+    reverses. Rings, not a helix: a helix that reverses leaves its turns 2 x step_mm apart
+    where it reverses (the pear's foot had 4 mm gaps there), rings step_mm everywhere. One
+    pass per offset in plan.offsets_mm (mm): the sensor moved that far across the beam in
+    the table plane (+: to the beam's left seen from above), the passes climbing and
+    descending in turn, so one pass ends where the next begins but for the offset (a move
+    across the beam, outside the cylinder)."""
     v = np.asarray(v, float) / np.linalg.norm(v)
     n = np.array([0.0, 0.0, 1.0]) if n is None else np.asarray(n, float) / np.linalg.norm(n)
     vxy = v[:2] / np.linalg.norm(v[:2])
@@ -134,11 +140,11 @@ def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
     for p, d in enumerate(plan.offsets_mm):
         x, y = base + float(d) * left
         for j in range(k):
-            up = j if p % 2 == 0 else k - j  # a descending pass starts at the top
-            z0, z1 = z + up * pitch, z + (up + (1 if p % 2 == 0 else -1)) * pitch
+            ring = j if p % 2 == 0 else k - 1 - j  # a descending pass starts at the top
+            zr = z + (ring + 0.5) * pitch
             i = len(turns)
-            turns.append(Turn(i, float(x), float(y), z0, z1, 0.0 if i % 2 == 0 else 360.0,
-                              360.0 if i % 2 == 0 else 0.0))
+            turns.append(Turn(i, float(x), float(y), zr, zr, 0.0 if i % 2 == 0 else 360.0,
+                              360.0 if i % 2 == 0 else 0.0, pitch))
     return turns
 
 
@@ -199,8 +205,8 @@ def sweep_coverage(points_mm: dict[str, np.ndarray], radius_mm: float, height_mm
     The outline r(phi, z) they measure (outline_from_points: 5 deg by spacing_mm cells, a gap
     of up to two cells in a row closed between measured ones) over the rows whose middle lies
     in band_mm (the heights the beam crossed at every radius; the row nearest its middle if
-    none); a cell the sweep passed between (its turns zigzag: 2 x step_mm apart in height
-    where they reverse) takes the radius of the nearest closed cell above or below it. Per
+    none); a cell the sweep passed between (its rings are up to step_mm apart in height)
+    takes the radius of the nearest closed cell above or below it. Per
     modality: the share of the band's cells whose surface point has a point of that
     modality within spacing_mm, a direction with no echo at any height counted as not
     covered; `directions`: the share of the 5 deg directions about the axis in which the

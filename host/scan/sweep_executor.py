@@ -113,8 +113,8 @@ class SweepRun:
         return ex
 
     def sweep(self, todo: list[Turn]) -> None:
-        """Every turn left queued at once (Marlin joins them: the table reverses between
-        turns, Z climbs on) with the stream armed throughout; each waveform placed once the
+        """Every turn left queued at once (the table reverses between turns while Z steps up
+        or down to the next ring) with the stream armed throughout; each waveform placed once the
         table's burst it belongs to is reported, each turn stored once the table has left
         it (while the next runs)."""
         sensor = self.sensor
@@ -129,8 +129,13 @@ class SweepRun:
         no_wave = time.monotonic() + NO_WAVEFORM_S
         sensor.stream_start()
         try:
+            z = todo[0].z0  # the pass's move brought Z there
             for t in todo:
-                self.stage.move(z=t.z1, a=t.a1, feed_mm_min=sweep_feed_mm_min(t, self.speed))
+                if t.z0 != z:  # to the next ring while the table reverses (A at rest: no
+                    self.stage.move(z=t.z0, feed_mm_min=self.plan.feed_mm_min)  # waveform
+                self.stage.move(z=t.z1, a=t.a1,  # placed there, host/scan/sweep.py)
+                                feed_mm_min=sweep_feed_mm_min(t, self.speed))
+                z = t.z1
             while next_turn < len(todo):
                 new = sensor.stream_take(0.05)
                 for w in new:
@@ -206,13 +211,15 @@ class SweepRun:
 
     def _place(self, ready: list, bursts: list, total: int) -> list[tuple[float, object]]:
         """(table steps done, waveform) of the waveforms on the move; the others (at rest
-        before or after it, or straddling a burst's start) left out."""
+        before or after it or between turns, where Z steps to the next ring, or straddling a
+        burst's start) left out."""
         if not ready:
             return []
         ts = np.array([w.timestamp for w in ready], dtype=np.int64)
         n_avg = int(ready[0].n_average)
         done = counted_steps(ts, np.array([w.sync_steps_a for w in ready]), n_avg,
-                             self.tick_hz / self.plan.laser_hz, bursts, self.quiet_ticks)
+                             self.tick_hz / self.plan.laser_hz, bursts, self.quiet_ticks,
+                             at_rest=False)
         ok = np.isfinite(done) & (done > 0) & (done < total)
         return [(float(done[i]), ready[i]) for i in np.flatnonzero(ok)]
 
@@ -254,11 +261,11 @@ def _range(rows: dict, turn: Turn, ranger: PointRanger, attempts: int,
            window_of: WindowOf | None = None) -> dict:
     """Distances and the file's per-row values of a kept turn; a lone pulse is read by the
     window where its own beam crosses the bounding cylinder (the first look's rule,
-    host/scan/first_look.py), at the height of its shot: Z climbs a turn, and a dipping
-    beam's far end moves with it (at the turn's start it would end ~15 mm nearer on a
-    wide object, and an OA pulse from beyond that end read as a US echo at half its
-    distance looked certain); else it continues the surface of the waveform before it (the
-    object turns under the beam, never jumps)."""
+    host/scan/first_look.py), at the height of its shot (were Z to climb during a turn, a
+    dipping beam's far end would move with it: ~15 mm over a 2 mm climb on a wide object,
+    and an OA pulse from beyond a window taken at the turn's start, read as a US echo at
+    half its distance, looked certain); else it continues the surface of the waveform
+    before it (the object turns under the beam, never jumps)."""
     n = len(rows["z"])
     out: dict[str, list] = {k: [] for k in ("distance_oa_mm", "distance_us_mm", "snr_oa_db",
                                             "snr_us_db")}

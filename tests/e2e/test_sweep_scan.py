@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from fly_scan_helpers import (
     ctrl_c_after,
     pose_errors,
@@ -65,7 +66,13 @@ def test_a_sweep_places_every_waveform_keeps_the_laser_busy_and_keeps_clear(emul
     assert sorted(set(p["point_index"].tolist())) == list(range(len(turns)))
     z = p["stage_position_mm"][:, 2] - emu.sim.scene.X_R[2]
     low, high = 14.0 - rise * plan.standoff_mm, 20.0 - rise * (plan.standoff_mm + 31.0)
-    assert low - 1e-3 <= z.min() < low + 0.1 and high - 0.1 < z.max() <= high + 1e-3
+    # flat rings at the middles of equal slices of low .. high, each 2 mm at most: every
+    # waveform at its ring's height (none placed while Z steps to the next)
+    pitch = turns[0].pitch
+    assert 0 < pitch <= 2.0 and pitch * len(turns) == pytest.approx(high - low)
+    rings = low + pitch * (np.arange(len(turns)) + 0.5)
+    for k in range(len(turns)):
+        assert np.abs(z[p["point_index"] == k] - rings[k]).max() < 0.01
     for k, t in enumerate(turns):
         th = p["theta_deg"][p["point_index"] == k]
         assert abs(th[0] - t.a0) < 2 and abs(th[-1] - t.a1) < 2 and len(th) > 300

@@ -209,9 +209,9 @@ def test_a_sweep_under_a_bowls_wall_stores_no_point_off_its_surface(emulator, tm
     """A wide bowl's foot: the dipping beam passes under its wall and meets its bottom at
     grazing incidence ~75 mm away, near the table, where it sends an OA pulse and no echo.
     That lone pulse read as a US echo is a surface at half the distance, in mid-air under
-    the wall; the window where the beam crosses the bounding cylinder rules it out only
-    where the shot was: Z climbs during a turn, and the turn's start ends the window ~15 mm
-    nearer (2026-12-06: 117 US points 11-13 mm off the bowl, read so)."""
+    the wall; the window where the beam crosses the bounding cylinder rules it out only if
+    taken where the shot was (2026-12-06, turns that climbed: a window taken at the turn's
+    start ended ~15 mm nearer, and 117 US points 11-13 mm off the bowl were read so)."""
     ranging, emu, cal, text = ranged_then(emulator, tmp_path, "bowl", 35)
     plan = ScanPlan("bowl", "plastic", **{**PLAN, "radius_mm": 83.1, "height_mm": 64.0,
                                           "levels_mm": [4.5, 6.5]})

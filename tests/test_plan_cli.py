@@ -47,11 +47,17 @@ def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_p
     a = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "auto", "-o",
             "a.toml", cwd=tmp_path)
     assert a.returncode == 0 and "levels [4.5, 6.5, 8.5," in a.stdout and "np." not in a.stdout
-    # a box (not --round): three passes, the beam a quarter of its width to either side too
+    # a box (not --round): four passes, the beam through the middles of four equal strips
+    # of its width (head on to its faces' corners); a round body with a handle (--reach-mm):
+    # three, through the axis (where its body is met head on) and a quarter to either side
     b = run("plan", "new", "box", "--size-mm", "50", "30", "40", "--mode", "sweep", cwd=tmp_path)
-    assert b.returncode == 0 and "3 passes, the beam +0, +12.5, -12.5 mm off the table axis" \
-        in b.stdout, b.stdout
-    assert load_plan(tmp_path / "box.toml").offsets_mm == [0.0, 12.5, -12.5]
+    assert b.returncode == 0 and \
+        "4 passes, the beam -18.8, -6.2, +6.2, +18.8 mm off the table axis" in b.stdout, b.stdout
+    assert load_plan(tmp_path / "box.toml").offsets_mm == [-18.8, -6.2, 6.2, 18.8]
+    m = run("plan", "new", "cup", "--size-mm", "113.5", "80", "95", "--reach-mm", "73.5",
+            "--mode", "sweep", cwd=tmp_path)
+    assert m.returncode == 0 and "3 passes, the beam +0, +28.4, -28.4 mm off the table axis" \
+        in m.stdout, m.stdout
 
 
 def test_plan_new_scans_a_one_modality_material_in_its_modality(tmp_path):

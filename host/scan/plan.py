@@ -251,10 +251,14 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     of it is from the table axis, for an object not centred by its footprint, such as a mug
     centred by its body), one level at half its height (at most 40 mm), four angles, the
     middle 70 % of its width; every 4 mm step and shoot, every 2 mm fly; the modality given,
-    else the material's (modality_for); a sweep of an object that is not round in three
-    passes, the beam through the axis and a quarter of the width to either side of it (its
-    flat faces seen head on away from their middles; one where three would pass the plan's
-    point limit). Edit the file for more levels or a finer step (docs/scanning.md)."""
+    else the material's (modality_for); a sweep of an object that is not round in passes
+    across the beam, one where they would pass the plan's point limit: a box (centred by
+    its footprint) in four, the beam through the middles of four equal strips of its widest
+    side (w/8 and 3 w/8 to either side of the axis: its flat faces seen head on to their
+    corners, where a US echo comes back); one given a reach_mm (a round body with a handle,
+    met head on only through its axis) in three, the beam through the axis and a quarter of
+    the width to either side. Edit the file for more levels or a finer step
+    (docs/scanning.md)."""
     modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
@@ -288,11 +292,16 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                        if mode == "auto" else {}),
                     **({"feed_mm_min": AUTO_FEED_MM_MIN} if mode == "sweep" else {}))
     if mode == "sweep" and not round_:
-        quarter = mm(min(max(w, d) / 4, 0.9 * plan.radius_mm))
-        plan.offsets_mm = [0.0, quarter, -quarter]
+        side = max(w, d)
+        if reach_mm is None:  # a box: four strips, in order (one move across a pass)
+            plan.offsets_mm = [mm(math.copysign(min(abs(k) * side / 8, 0.9 * plan.radius_mm),
+                                                k)) for k in (-3, -1, 1, 3)]
+        else:
+            quarter = mm(min(side / 4, 0.9 * plan.radius_mm))
+            plan.offsets_mm = [0.0, quarter, -quarter]
         try:
             plan.validate()
-        except PlanError:  # three passes of a tall object over the point limit: one
+        except PlanError:  # the passes of a tall object over the point limit: one
             plan.offsets_mm = [0.0]
     plan.validate()
     return plan

@@ -16,10 +16,13 @@ from dmdsm.host.scan.coverage import coverage
 from dmdsm.sim.physics.visibility import reachable_surface
 
 
-def reachable_truth(sim_truth_objects, v, n, spacing_mm=2.0, z_range_mm=None) -> np.ndarray:
-    """The union of all objects' reachable surface samples (m, 3, mm, object frame)."""
+def reachable_truth(sim_truth_objects, v, n, spacing_mm=2.0, z_range_mm=None,
+                    max_incidence_deg=60.0) -> np.ndarray:
+    """The union of all objects' reachable surface samples (m, 3, mm, object frame): seen
+    from some table angle within max_incidence_deg (deg) of head on."""
     parts = [reachable_surface(t, np.asarray(v, float), np.asarray(n, float),
-                               spacing_mm=spacing_mm, z_range_mm=z_range_mm)[0]
+                               spacing_mm=spacing_mm, z_range_mm=z_range_mm,
+                               max_incidence_deg=max_incidence_deg)[0]
              for t in sim_truth_objects]
     return np.concatenate(parts) if parts else np.zeros((0, 3))
 

@@ -8,7 +8,9 @@ its levels restricted to a band of the object's height (every 2 mm from 4.5 mm u
 4.5 + `--band-mm`): the band is scanned, not the whole height, to keep the emulator's time
 within a bench run. Per object and mode one row: points per modality, wall and emulated time,
 points per emulated second, coverage at 2 mm of the emulator's true reachable surface within
-the band (bench/coverage_truth.py; the same band for every mode, so the rows compare), the
+the band (bench/coverage_truth.py; the same band for every mode, so the rows compare; per
+modality: what OA can reach from some table angle within 60 deg of incidence, US within 15,
+the sensor's limits in docs/scanning.md), the
 mean and 95th percentile of the points' distance to the true surface, the laser's duty
 (host/scan/coverage.py) and keep-out violations: laser shots whose true sensor position came
 within 2 mm (the keep-out margin) of the true object surface. The ranging calibration is
@@ -57,6 +59,9 @@ QUICK = ("aluminium_block", "mug")
 MODES = ("step", "fly", "auto", "sweep")
 SPACING_MM = 2.0          # coverage spacing (the target's)
 MARGIN_MM = 2.0           # the keep-out margin (host/links/safety.py KeepOut)
+# the incidence (deg) each modality ranges at (docs/scanning.md, "What the sensor ranges
+# well": OA 30-60 deg, US 15): a surface US cannot reach is not held against it
+MAX_INCIDENCE_DEG = {"oa": 60.0, "us": 15.0}
 MAX_DIST_POINTS = 20_000  # points per modality whose distance to the truth is computed
 TARGETS = {"coverage": 0.95, "duty": 0.50, "violations": 0}
 RANGING_AT_MM = (235.0, 266.0, 20.0)  # in front of the block's face (host/commands/sim.py)
@@ -255,7 +260,7 @@ def one_scan(obj: str, mode: str, plan, setup, seed: int, speed: float, z_band: 
            "duty_waveform_span": laser_duty(stored, plan.average, sim.cfg.rep_rate_hz,
                                             float((ts[-1] - ts[0]) / TICK_HZ))
            if stored > 1 else None,
-           "coverage": {m: coverage(reference["surface"], pts[m]["P"], SPACING_MM)
+           "coverage": {m: coverage(reference["surface"][m], pts[m]["P"], SPACING_MM)
                         for m in MODS},
            "distance": {m: truth_distance(pts[m]["P"], truths) for m in MODS},
            "duty": laser_duty(stored, plan.average, sim.cfg.rep_rate_hz, sim_s),
@@ -298,7 +303,8 @@ def row_text(r: dict) -> str:
 
 def summary(rows: list[dict], modes: list[str]) -> list[str]:
     """Per mode: average coverage (per modality, over the objects scanned for it: their
-    material's modality) and duty, total violations, against the targets."""
+    material's modality, with a surface in the band it can reach) and duty, total
+    violations, against the targets."""
     out = [f"targets: coverage >= {TARGETS['coverage']:.0%} at {SPACING_MM:g} mm, laser duty "
            f">= {TARGETS['duty']:.0%}, {TARGETS['violations']} keep-out violations"]
     for mode in modes:
@@ -309,7 +315,8 @@ def summary(rows: list[dict], modes: list[str]) -> list[str]:
             continue
         parts = []
         for m in MODS:  # over the objects scanned for m (their material's modality)
-            mine = [r for r in ok if r["plan"]["modality"] in ("both", m)]
+            mine = [r for r in ok if r["plan"]["modality"] in ("both", m)
+                    and np.isfinite(r["coverage"][m])]  # and with a surface m can reach
             if not mine:
                 continue
             cov = np.nanmean([r["coverage"][m] for r in mine])
@@ -372,14 +379,17 @@ def main() -> int:
         levels = auto_levels(size[2], args.band_mm)
         z_band = (levels[0] - SPACING_MM / 2, levels[-1] + SPACING_MM / 2)
         s = sim.scene
-        surface = reachable_truth(truths, s.v, s.n, SPACING_MM, z_band)
+        surface = {m: reachable_truth(truths, s.v, s.n, SPACING_MM, z_band, a)
+                   for m, a in MAX_INCIDENCE_DEG.items()}
         sim.close()
-        reference = {"surface": surface, "samples": len(surface),
+        samples = {m: len(x) for m, x in surface.items()}
+        reference = {"surface": surface, "samples": samples,
                      "true_radius_mm": true_reach_mm(truths)}
         print(f"\n{obj}: {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} mm "
               f"({'round' if round_ else 'not round'}), farthest from the table axis "
               f"{reference['true_radius_mm']:.1f} mm; band z {z_band[0]:g}..{z_band[1]:g} mm, "
-              f"{len(surface)} reachable truth samples", flush=True)
+              + ", ".join(f"{samples[m]} truth samples {m.upper()} reaches (within "
+                          f"{MAX_INCIDENCE_DEG[m]:g} deg)" for m in MODS), flush=True)
         for mode in args.modes:
             print(f"  {mode} ...", file=sys.stderr, flush=True)
             wall0 = time.monotonic()
@@ -411,8 +421,10 @@ def main() -> int:
             if args.json:
                 args.json.write_text(json.dumps(results, indent=1, default=float))
     print("\ncolumns: points per modality; wall and emulated seconds of the scan; stored "
-          "points per emulated second; coverage of the reachable truth in the band at "
-          f"{SPACING_MM:g} mm; e: |distance| of the points to the true surface (mean, 95th "
+          "points per emulated second; coverage of the truth in the band each modality "
+          f"reaches (OA within {MAX_INCIDENCE_DEG['oa']:g} deg of head on, US within "
+          f"{MAX_INCIDENCE_DEG['us']:g}; '-': none) at {SPACING_MM:g} mm; e: |distance| "
+          "of the points to the true surface (mean, 95th "
           f"percentile, mm); laser duty; viol: laser shots with the sensor within "
           f"{MARGIN_MM:g} mm of the true surface; clear: its least clearance (mm)")
     lines = summary(rows, args.modes)

@@ -214,3 +214,22 @@ def test_truth_coverage_per_modality(truths):
     levels = mod.truth_coverage([truth], {"OA": reach[reach[:, 2] < 20.0]}, V, N,
                                 spacing_mm=2.0, z_range_mm=(0.0, 20.0))
     assert levels["OA"] > 0.97
+
+
+def test_the_us_reference_is_the_surface_within_its_incidence(truths):
+    """bench/scan_coverage.py holds each modality to what it can reach: US (echoes within ~15
+    deg of head on) to the block's faces alone, met square by some table angle; OA (60 deg)
+    to the same; a surface that faces the table more than 15 deg from a level beam
+    drops out of US's reference only (a bowl's foot)."""
+    spec = importlib.util.spec_from_file_location("coverage_truth",
+                                                  ROOT / "bench" / "coverage_truth.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    _, block = truths["aluminium_block"]
+    oa = mod.reachable_truth([block], V, N, 2.0, (2.0, 38.0), 60.0)
+    us = mod.reachable_truth([block], V, N, 2.0, (2.0, 38.0), 15.0)
+    assert len(oa) > 0 and len(us) == pytest.approx(len(oa), rel=0.05)
+    low = (3.5, 13.5)  # the bowl's foot: its normals point 57-74 deg below level
+    _, bowl = truths["bowl"]
+    assert len(mod.reachable_truth([bowl], V, N, 2.0, low, 60.0)) > 10
+    assert len(mod.reachable_truth([bowl], V, N, 2.0, low, 15.0)) == 0

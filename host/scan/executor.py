@@ -65,8 +65,9 @@ def run_scan(stage: Stage, sensor: ShotSensor, plan: ScanPlan, points: list[Poin
             wave = got.samples[0].astype(np.uint16)
             prev = previous if previous is not None and previous[0] == (p.angle_index,
                                                                          p.level) else None
+            window = p.window_mm if np.isfinite(p.window_mm).all() else None  # a lone
             r = ranger(wave, int(got.trigger_phase[0]), int(got.config.get("pretrigger", 0)),
-                       prev[1] if prev else None)
+                       prev[1] if prev else None, window)  # pulse read by it, if it is set
             previous = ((p.angle_index, p.level), surface(r))
             ids = dict(n_average=int(got.n_average[0]), timestamp=int(got.timestamp[0]),
                        trigger_phase=int(got.trigger_phase[0]), received=True)

@@ -166,6 +166,20 @@ def _complete(scan_id: str, path: Path) -> ScanRun | None:
     return ScanRun(scan_id, path, done.n_points, done.n_points, "already complete")
 
 
+def _cylinder_windows(points: list[Point], plan: ScanPlan, v: np.ndarray, n: np.ndarray,
+                      X_R: np.ndarray) -> None:
+    """Give each point of a one-modality step or fly plan the window where its beam crosses
+    the bounding cylinder: such a plan reads every lone pulse as its own modality, and only
+    the window tells it from the other's (a steel can's paper label, met at 40 deg 18 mm
+    away, gives an OA pulse and no echo; read as a US echo it is a surface at 8.8 mm, in
+    mid-air: 20 of the can's 52 step points so, 2026-12-06). A "both" plan (the paper's
+    block) keeps its readings as they were: it reads a lone pulse by continuity."""
+    S = np.array([[p.x, p.y, p.z] for p in points], float).reshape(-1, 3)
+    near, far = cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
+    for p, a, b in zip(points, near, far):
+        p.window_mm = (float(a), float(b))
+
+
 def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
              setup: RangingSetup, db: Path, calibration_toml: str | None = None,
              scan_id: str | None = None, home: bool = True,
@@ -195,6 +209,8 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
     here = stage.where()
     here_xyz = np.array([here["X"], here["Y"], here["Z"]])
     v = np.asarray(calibration["v"], float)
+    if plan.mode in ("step", "fly") and plan.modality != "both":
+        _cylinder_windows(points, plan, v, n, X_R)
     turns = sweep_turns(plan, v, X_R, n) if plan.mode == "sweep" else []
     if plan.mode == "sweep":
         targets, labels = sweep_path(turns)

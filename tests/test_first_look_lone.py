@@ -138,6 +138,29 @@ def test_a_sweep_of_a_material_that_answers_in_both_reads_a_lone_pulse_as_oa():
     assert abs(misread - both.other_reading_mm("us", truth)) < 1.0
 
 
+def test_a_plan_of_a_material_that_answers_in_both_reads_no_lone_pulse_as_us():
+    """An auto line's neighbour (the outline's prediction) at ~15 mm, and an OA pulse from
+    plastic 30 mm away at 40 deg (no echo): read as US it continues the prediction, a
+    surface at 15 mm where there is none (a bowl's auto lines stored 6 such points 13 mm off
+    it, 2026-12-06). A plan of plastic reads no lone pulse as US in any mode (its OA pulse
+    would be there); a plan of no declared material still may."""
+    from dmdsm.host.scan.plan import ScanPlan, point_ranger
+
+    wave, phase, truth, both = cell_waveform("plastic", 30.0, 40.0)
+    us_reading = both.other_reading_mm("oa", truth)
+    prediction = (us_reading + 0.5, {"oa": -np.inf, "us": -np.inf})
+    misread = both(wave, phase, 0, prediction)
+    assert abs(misread["us"][0] - us_reading) < 1.0 and np.isnan(misread["oa"][0])
+    for mode in ("auto", "step", "fly", "sweep"):
+        plan = ScanPlan("x", "plastic", radius_mm=40.0, height_mm=40.0, levels_mm=[10.0],
+                        angles_deg=[0.0], mode=mode)
+        r = point_ranger(plan, both.setup, both.n, both.tick_hz)
+        assert r.answers_both and np.isnan(r(wave, phase, 0, prediction)["us"][0]), mode
+    unknown = ScanPlan("x", "", radius_mm=40.0, height_mm=40.0, levels_mm=[10.0],
+                       angles_deg=[0.0], mode="auto")
+    assert not point_ranger(unknown, both.setup, both.n, both.tick_hz).answers_both
+
+
 V = np.array([0.0656, 0.9955, -0.0678]) / np.linalg.norm([0.0656, 0.9955, -0.0678])
 N = np.array([-0.0007, 0.0022, 0.9999]) / np.linalg.norm([-0.0007, 0.0022, 0.9999])
 X_R = np.array([235.21, 288.17, 0.0])

@@ -35,14 +35,18 @@ class PointRanger:
     # line expects the surface). Between the two, with lone_is_oa (the scan layer's: a
     # sweep of an object whose declared material answers in both), a lone pulse within the
     # window is OA: a lone US echo would mean a surface met head on whose OA pulse failed.
+    # For the same reason, with answers_both (any scan of such an object) no lone pulse is
+    # read as US, whatever the window or a neighbour says.
 
     def __init__(self, setup: RangingSetup, n_samples: int, tick_hz: float,
                  modality: str, depth_mm: tuple[float, float], pair_mm: float = 2.0,
-                 lone_is_oa: bool = False) -> None:
+                 answers_both: bool = False, lone_is_oa: bool = False) -> None:
         """setup: templates and t0, c; n_samples per waveform; tick_hz of trigger phases;
         modality "both", "oa" or "us"; depth_mm (lo, hi) where echoes are searched (mm);
-        lone_is_oa: the object answers in both (its declared material), so with "both" a
-        lone pulse the window cannot read is OA if within the window (see __call__)."""
+        answers_both: the object answers in both (its declared material), so with "both" a
+        lone pulse is never read as a US echo; lone_is_oa: and one the window cannot read is
+        OA if within the window (see __call__)."""
+        self.answers_both = answers_both
         self.lone_is_oa = lone_is_oa
         self.setup = setup
         self.tick_hz = tick_hz
@@ -173,6 +177,12 @@ class PointRanger:
                 near = [m for m in mods if abs(wide[m][0] - previous[0]) < CONTINUITY_MM
                         and wide[m][1] >= previous[1].get(m, np.inf) - CONTINUITY_DB]
                 lone = near[0] if len(near) == 1 else None
+        if lone == "us" and self.answers_both:
+            # a lone echo from an object that answers in both would have had its OA pulse:
+            # it is an OA pulse from twice as far (a bowl's auto line, its beam passing
+            # under the wall the outline predicted to meet the bottom at grazing incidence:
+            # the US reading fell on the prediction, 13 mm off the bowl)
+            lone = None
         if lone is not None and np.isfinite(wide[lone][0]):
             out[lone] = wide[lone]
         return out

@@ -332,7 +332,8 @@ def run_auto_scan(stage: Stage, sensor: StreamSensor, plan: ScanPlan, look: list
     far, far_via, fplan = plan_far_look(writer, look, plan, calibration, machine, turntable)
     if fplan is not None:  # from farther out: its own depth gate
         far_ranger = PointRanger(ranger.setup, ranger.n, ranger.tick_hz, ranger.modality,
-                                 fplan.depth_gate_mm(), ranger.pair_mm)
+                                 fplan.depth_gate_mm(), ranger.pair_mm,
+                                 answers_both=ranger.answers_both)
         _add(stats, run_fly_scan(stage, sensor, fplan, look + far, writer, far_ranger,
                                  machine, progress, via=far_via))
     auto = plan_follow(writer, look + far, plan, calibration, machine, turntable)

@@ -313,11 +313,12 @@ def point_ranger(plan: ScanPlan, setup: RangingSetup, n_samples: int, tick_hz: f
     tick_hz): its modality, gated to its depth range (ScanPlan.depth_gate_mm); a sweep of
     a material that answers in both reads a lone pulse as OA where its window allows (its
     path is fixed by the plan: no reading moves the keep-out, as an auto scan's outline
-    does, where a US echo read as OA would put the surface twice as far)."""
-    lone_is_oa = plan.mode == "sweep" and plan.modality == "both" and \
-        plan.material.strip().lower() in BOTH_MATERIALS
+    does, where a US echo read as OA would put the surface twice as far); in any mode such
+    a plan reads no lone pulse as US (its OA pulse would be there: it is OA from twice as
+    far)."""
+    both = plan.modality == "both" and plan.material.strip().lower() in BOTH_MATERIALS
     return PointRanger(setup, n_samples, tick_hz, plan.modality, plan.depth_gate_mm(),
-                       lone_is_oa=lone_is_oa)
+                       answers_both=both, lone_is_oa=both and plan.mode == "sweep")
 
 
 MAX_POINTS = 200_000  # ~4 h of step and shoot; bounds the memory and time of a plan's check

@@ -264,7 +264,7 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
         elif plan.mode == "fly":
             run.stats = run_fly_scan(stage, sensor, plan, points, writer, ranger, machine,
                                      progress)
-        elif plan.mode == "sweep":  # each shot's window, where it was: Z climbs a turn
+        elif plan.mode == "sweep":  # each shot's window, at its own height
             def window_of(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 return cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
             run.stats = run_sweep_scan(stage, sensor, plan, turns, len(points), writer,

@@ -41,7 +41,7 @@ def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_p
     r = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "sweep",
             cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "the table turning while Z climbs 4.5 to 92.5 mm, 2 mm a turn" in r.stdout
+    assert "the table turning at each height from 4.5 to 92.5 mm, 2 mm apart" in r.stdout
     plan = load_plan(tmp_path / "mug.toml")
     assert plan.mode == "sweep" and f"{plan.n_points()} points" in r.stdout
     a = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "auto", "-o",

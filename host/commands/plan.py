@@ -93,8 +93,8 @@ def _summary(plan: object) -> str:
     if plan.mode == "sweep":
         lo, hi = min(plan.levels_mm), max(plan.levels_mm)
         offsets = plan.offsets_mm
-        return (head + f"the table turning while Z climbs {lo:g} to {hi:g} mm, "
-                f"{plan.step_mm:g} mm a turn, {plan.standoff_mm:g} mm outside a "
+        return (head + f"the table turning at each height from {lo:g} to {hi:g} mm, "
+                f"{plan.step_mm:g} mm apart, {plan.standoff_mm:g} mm outside a "
                 f"{plan.radius_mm:g} mm cylinder"
                 + (f"; {len(offsets)} passes, the beam "
                    + ", ".join(f"{d:+g}" for d in offsets) + " mm off the table axis"

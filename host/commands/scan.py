@@ -42,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="override [scan] mode: step and shoot, fly (each line one "
                         "constant-speed move, shots placed by counted steps), auto (a "
                         "first look, then lines that follow the outline) or sweep (the "
-                        "table turning while the sensor climbs; docs/scanning.md)")
+                        "table turning under the sensor, a ring at each height; docs/scanning.md)")
     p.add_argument("--no-home", action="store_true", help="the stage is already homed")
     p.add_argument("--no-model", action="store_true",
                    help="auto: do not build the object's 3D model after the scan")

@@ -228,8 +228,8 @@ def stage_models(d: Demo) -> Section:
                "laser duty % (first to last waveform)"], swept)
     sec.text.append(
         f"Each object is also swept over the campaign's levels (`dmdsm scan --mode sweep`, "
-        f"into {d.out / 'db_sweep'}: the table turning under the sensor while it climbs, 2 mm "
-        f"a turn); the second coverage table compares it with the auto scan in that band "
+        f"into {d.out / 'db_sweep'}: the table turning under the sensor, a ring "
+        f"every 2 mm); the second coverage table compares it with the auto scan in that band "
         f"(the first is over the whole band the auto scan's model spans, its first look's "
         f"included), from the emulator's truth beside what each scan reported without it "
         f"(an auto scan of its first look's outline, a sweep of the outline its own points "

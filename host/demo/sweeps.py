@@ -1,5 +1,6 @@
 """Stage 6 of the demo, beside the campaign: each of its objects swept over the same band (the
-table turning while the sensor climbs), for the coverage and laser-duty comparison."""
+table turning under the sensor, a ring at each height), for the coverage and laser-duty
+comparison."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""Sweep scans in hil_sim (issue 32): the table turning under the sensor while Z climbs, every
-turn queued at once; each waveform placed by the table's counted steps where its shots were
-(the emulator's truth), the points on the true surface, the laser busy, the sensor clear of
-the object; Ctrl-C then the same command resuming after the last turn stored; a table whose
-STEP line is not wired is named in one line."""
+"""Sweep scans in hil_sim (issue 32): the table turning under the sensor, a ring at each
+height, every turn queued at once; each waveform placed by the table's counted steps where
+its shots were (the emulator's truth), the points on the true surface, the laser busy, the
+sensor clear of the object; Ctrl-C then the same command resuming after the last turn
+stored; a table whose STEP line is not wired is named in one line."""
 
 import json
 import subprocess

@@ -131,12 +131,21 @@ def first_look_points(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
     pts = _numbered(expand(look, v, X_R), first_line)
     for p in pts:
         p.index += first_index
-    if n is not None and pts:
-        S = np.array([[p.x, p.y, p.z] for p in pts], float).reshape(-1, 3)
-        near, far = cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
-        for p, a, b in zip(pts, near, far):
-            p.window_mm = (float(a), float(b))
+    if n is not None:
+        set_cylinder_windows(pts, v, n, X_R, plan.radius_mm, plan.height_mm)
     return pts
+
+
+def set_cylinder_windows(points: list[Point], v: np.ndarray, n: np.ndarray, X_R: np.ndarray,
+                         radius_mm: float, height_mm: float) -> None:
+    """Set each point's window_mm to where its beam crosses the bounding cylinder
+    (cylinder_window; NaN where it misses): the ranger reads a lone pulse by it."""
+    if not points:
+        return
+    S = np.array([[p.x, p.y, p.z] for p in points], float)
+    near, far = cylinder_window(S, v, n, X_R, radius_mm, height_mm)
+    for p, a, b in zip(points, near, far):
+        p.window_mm = (float(a), float(b))
 
 
 def cylinder_window(S: np.ndarray, v: np.ndarray, n: np.ndarray, X_R: np.ndarray,

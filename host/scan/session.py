@@ -29,7 +29,12 @@ from .auto_executor import outline_coverage, run_auto_scan, stored_points
 from .catalogue import connect, record
 from .common import Progress, ScanStats
 from .executor import run_scan
-from .first_look import cylinder_window, first_look_plan, first_look_points
+from .first_look import (
+    cylinder_window,
+    first_look_plan,
+    first_look_points,
+    set_cylinder_windows,
+)
 from .fly_executor import fly_lines, line_ends, run_fly_scan
 from .plan import (
     AUTO_SPACING_MM,
@@ -166,20 +171,6 @@ def _complete(scan_id: str, path: Path) -> ScanRun | None:
     return ScanRun(scan_id, path, done.n_points, done.n_points, "already complete")
 
 
-def _cylinder_windows(points: list[Point], plan: ScanPlan, v: np.ndarray, n: np.ndarray,
-                      X_R: np.ndarray) -> None:
-    """Give each point of a one-modality step or fly plan the window where its beam crosses
-    the bounding cylinder: such a plan reads every lone pulse as its own modality, and only
-    the window tells it from the other's (a steel can's paper label, met at 40 deg 18 mm
-    away, gives an OA pulse and no echo; read as a US echo it is a surface at 8.8 mm, in
-    mid-air: 20 of the can's 52 step points so, 2026-12-06). A "both" plan (the paper's
-    block) keeps its readings as they were: it reads a lone pulse by continuity."""
-    S = np.array([[p.x, p.y, p.z] for p in points], float).reshape(-1, 3)
-    near, far = cylinder_window(S, v, n, X_R, plan.radius_mm, plan.height_mm)
-    for p, a, b in zip(points, near, far):
-        p.window_mm = (float(a), float(b))
-
-
 def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
              setup: RangingSetup, db: Path, calibration_toml: str | None = None,
              scan_id: str | None = None, home: bool = True,
@@ -210,7 +201,11 @@ def run_plan(sensor: Sensor, stage: Stage, plan: ScanPlan, *, calibration: dict,
     here_xyz = np.array([here["X"], here["Y"], here["Z"]])
     v = np.asarray(calibration["v"], float)
     if plan.mode in ("step", "fly") and plan.modality != "both":
-        _cylinder_windows(points, plan, v, n, X_R)
+        # a one-modality plan reads every lone pulse as its own modality: only the window
+        # tells it from the other's (a steel can's paper label, met 40 deg off head on
+        # ~18 mm away, gives an OA pulse read as an echo in mid-air at ~9 mm). A "both"
+        # plan (the paper's block) keeps its readings: it reads a lone pulse by continuity
+        set_cylinder_windows(points, v, n, X_R, plan.radius_mm, plan.height_mm)
     turns = sweep_turns(plan, v, X_R, n) if plan.mode == "sweep" else []
     if plan.mode == "sweep":
         targets, labels = sweep_path(turns)

@@ -113,8 +113,8 @@ class SweepRun:
         return ex
 
     def sweep(self, todo: list[Turn]) -> None:
-        """Every turn left queued at once (the table reverses between turns while Z steps up
-        or down to the next ring) with the stream armed throughout; each waveform placed once the
+        """Every turn left queued at once (the table reverses between turns while Z steps
+        to the next ring) with the stream armed throughout; each waveform placed once the
         table's burst it belongs to is reported, each turn stored once the table has left
         it (while the next runs)."""
         sensor = self.sensor
@@ -129,12 +129,13 @@ class SweepRun:
         no_wave = time.monotonic() + NO_WAVEFORM_S
         sensor.stream_start()
         try:
-            z = todo[0].z0  # the pass's move brought Z there
+            # Z steps to the next ring while the table reverses (the table at rest: no
+            # waveform is placed there, _place); the pass's move brought Z to the first
+            z = todo[0].z0
             for t in todo:
-                if t.z0 != z:  # to the next ring while the table reverses (A at rest: no
-                    self.stage.move(z=t.z0, feed_mm_min=self.plan.feed_mm_min)  # waveform
-                self.stage.move(z=t.z1, a=t.a1,  # placed there, host/scan/sweep.py)
-                                feed_mm_min=sweep_feed_mm_min(t, self.speed))
+                if t.z0 != z:
+                    self.stage.move(z=t.z0, feed_mm_min=self.plan.feed_mm_min)
+                self.stage.move(z=t.z1, a=t.a1, feed_mm_min=sweep_feed_mm_min(t, self.speed))
                 z = t.z1
             while next_turn < len(todo):
                 new = sensor.stream_take(0.05)

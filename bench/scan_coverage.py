@@ -54,7 +54,7 @@ from dmdsm.sim.servers.runner import SimConfig, Simulation
 
 # object: is it round (its bounding cylinder from its width, not its diagonal)
 OBJECTS = {"aluminium_block": False, "mug": False, "plastic_bottle_neck": True, "bowl": True,
-           "pear": True, "can_with_label": True, "jar_with_lid": True}
+           "pear": True, "can_with_label": True, "jar_with_lid": True, "tissue_box": False}
 QUICK = ("aluminium_block", "mug")
 MODES = ("step", "fly", "auto", "sweep")
 SPACING_MM = 2.0          # coverage spacing (the target's)

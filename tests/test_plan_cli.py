@@ -47,13 +47,25 @@ def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_p
     a = run("plan", "new", "mug", "--size-mm", "80", "80", "95", "--mode", "auto", "-o",
             "a.toml", cwd=tmp_path)
     assert a.returncode == 0 and "levels [4.5, 6.5, 8.5," in a.stdout and "np." not in a.stdout
-    # a box (not --round): four passes, the beam through the middles of four equal strips
-    # of its width (head on to its faces' corners); a round body with a handle (--reach-mm):
-    # three, through the axis (where its body is met head on) and a quarter to either side
+    # a box (not --round): the beam through the middles of equal strips of its width, as
+    # many as reach.box_passes needs for each modality to see its faces (docs/scanning.md);
+    # a box whose near faces are out of US reach from 8 mm outside its cylinder (a 120 x 60
+    # tissue box: 46 mm head on) is swept from 3 mm; a round body with a handle
+    # (--reach-mm): three passes, through the axis (where its body is met head on) and a
+    # quarter to either side
     b = run("plan", "new", "box", "--size-mm", "50", "30", "40", "--mode", "sweep", cwd=tmp_path)
-    assert b.returncode == 0 and \
-        "4 passes, the beam -18.8, -6.2, +6.2, +18.8 mm off the table axis" in b.stdout, b.stdout
-    assert load_plan(tmp_path / "box.toml").offsets_mm == [-18.8, -6.2, 6.2, 18.8]
+    assert b.returncode == 0 and "8 mm outside a 30.2 mm cylinder; 5 passes, the beam " \
+        "-20, -10, +0, +10, +20 mm off the table axis" in b.stdout, b.stdout
+    assert load_plan(tmp_path / "box.toml").offsets_mm == [-20.0, -10.0, 0.0, 10.0, 20.0]
+    t = run("plan", "new", "tissues", "--size-mm", "120", "60", "90", "--material", "paper",
+            "--mode", "sweep", cwd=tmp_path)
+    assert t.returncode == 0 and "3 mm outside a 68.1 mm cylinder; 8 passes" in t.stdout, \
+        t.stdout
+    assert load_plan(tmp_path / "tissues.toml").standoff_mm == 3.0
+    foam = run("plan", "new", "foam", "--size-mm", "120", "60", "90", "--material", "foam",
+               "--mode", "sweep", cwd=tmp_path)  # OA alone: in reach, seen to 30 deg
+    assert foam.returncode == 0 and "8 mm outside a 68.1 mm cylinder; 4 passes" in \
+        foam.stdout, foam.stdout
     m = run("plan", "new", "cup", "--size-mm", "113.5", "80", "95", "--reach-mm", "73.5",
             "--mode", "sweep", cwd=tmp_path)
     assert m.returncode == 0 and "3 passes, the beam +0, +28.4, -28.4 mm off the table axis" \

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..report.page import Section
 from ..scan.plan import modality_for
+from ..scan.reach import US_MAX_INCIDENCE_DEG
 from .session import TITLES, Demo
 from .sweeps import met_band, span_duty, sweep_scans
 
@@ -21,6 +22,9 @@ CAMPAIGN = ("soda_can", "tissue_box", "plastic_tub", "apple_red", "foam_cup", "g
 LEVELS = 3           # the auto scans' levels, 2 mm apart about half the height (at most 40)
 LEVELS_QUICK = 3
 SPACING_MM = 2.0
+# the true surface each modality's coverage is of: within this of head on from some table
+# angle (an auto plan's max_incidence_deg for OA; US echoes only near head on)
+INCIDENCE_DEG = {"oa": 45.0, "us": US_MAX_INCIDENCE_DEG}
 
 
 def campaign_file(d: Demo, names: tuple[str, ...], levels: int) -> Path:
@@ -86,23 +90,23 @@ def own_part_z(db: Path, name: str, truths: list, z_band: tuple[float, float]
 
 
 def band_coverage(truths: list, v: np.ndarray, n: np.ndarray, files: dict[str, str],
-                  z_band: tuple[float, float], max_incidence_deg: float) -> dict:
+                  z_band: tuple[float, float]) -> dict:
     """Per scan (name -> file), per modality: the share of the object's true surface in the
-    band that the sensor can see (within max_incidence_deg from some table angle) with a
-    point within 2 mm."""
+    band that the modality can see (within INCIDENCE_DEG of it from some table angle: US
+    only near head on) with a point of it within 2 mm."""
     from dmdsm.sim.physics.visibility import reachable_surface
 
     from ..scan.coverage import coverage
     from ..scan.points import scan_points
     from ..scan.scanfile import read_scan
 
-    ref = np.concatenate([reachable_surface(t, v, n, spacing_mm=SPACING_MM, z_range_mm=z_band,
-                                            max_incidence_deg=max_incidence_deg)[0]
-                          for t in truths])
+    ref = {m: np.concatenate([reachable_surface(t, v, n, spacing_mm=SPACING_MM,
+                                                z_range_mm=z_band, max_incidence_deg=a)[0]
+                              for t in truths]) for m, a in INCIDENCE_DEG.items()}
     out = {}
     for mode, f in files.items():
         pts = scan_points(read_scan(Path(f), waveforms=False))
-        out[mode] = {m: float(coverage(ref, pts[m]["P"], SPACING_MM)) for m in ("oa", "us")}
+        out[mode] = {m: float(coverage(ref[m], pts[m]["P"], SPACING_MM)) for m in ("oa", "us")}
     return out
 
 
@@ -157,22 +161,25 @@ def stage_models(d: Demo) -> Section:
         j = judge(model, truths, band)
         j["z_rms_own"] = own_part_z(db, name, truths, band)
         files = {**_fixed_scans(d, name), "auto": str(db / "scans" / f"{r['scan_id']}.h5")}
-        cov = band_coverage(truths, v, n, files, band, 45.0)
+        cov = band_coverage(truths, v, n, files, band)
         duty = {mode: span_duty(f) for mode, f in files.items()}
         for mode in ("step", "fly", "auto"):
             if mode in cov:
                 cover.append([name, mode, _pct(cov[mode]["oa"]), _pct(cov[mode]["us"]),
                               _pct(duty[mode])])
         # the sweep over the auto scan's follow levels and the auto scan, side by side, in
-        # the band the sweep's beam met (the beam falls a little: below the sensor's Z)
+        # the band the sweep's beam crossed at every radius (the beam dips: below the
+        # sensor's Z), the one its own figure is of; else where its points are
         lv = bands[name]
         levels_band = (min(lv) - SPACING_MM / 2, max(lv) + SPACING_MM / 2)
         both = {"auto": files["auto"]}
         if name in sweeps:
             both["sweep"] = sweeps[name]["file"]
             duty["sweep"] = span_duty(both["sweep"])
-            levels_band = met_band(both["sweep"]) or levels_band
-        cov_levels = band_coverage(truths, v, n, both, levels_band, 45.0)
+            own = ((sweeps[name]["summary"].get("coverage") or {}).get("band_mm")
+                   or met_band(both["sweep"]))
+            levels_band = tuple(own) if own else levels_band
+        cov_levels = band_coverage(truths, v, n, both, levels_band)
         told = {"auto": r.get("coverage") or {},  # what each scan reported, from its points
                 "sweep": (sweeps.get(name) or {}).get("summary", {}).get("coverage") or {}}
         for mode in both:
@@ -211,7 +218,8 @@ def stage_models(d: Demo) -> Section:
               "the campaign scans, models and classifies each object", not missing)
     sec.check("auto scans cover more of the true surface in their band than the fixed plans:",
               "; ".join(worse) if worse else "yes, every object",
-              "coverage at 2 mm of the surface the sensor can see within 45 deg, from the "
+              "coverage at 2 mm of the surface each modality can see (OA within 45 deg, US "
+              f"within {US_MAX_INCIDENCE_DEG:g}), from the "
               "emulator's truth (stage 4's step and fly scans: one level, four angles)",
               not worse)
     sec.table(["object", "material", "points", "OA % of outline", "US % of outline",
@@ -223,7 +231,8 @@ def stage_models(d: Demo) -> Section:
               "its last in a stored waveform)", "issue 32's laser duty target (50 %)", not idle)
     sec.table(["object", "scan", "OA coverage % (band)", "US coverage % (band)",
                "laser duty % (first to last waveform)"], cover)
-    sec.table(["object", "scan", "z band (mm): where the sweep's beam met it", "OA coverage %",
+    sec.table(["object", "scan", "z band (mm): the sweep's own (its beam across the cylinder)",
+               "OA coverage %",
                "US coverage %", "OA / US % the scan reported (of its own outline)",
                "laser duty % (first to last waveform)"], swept)
     sec.text.append(

@@ -87,6 +87,14 @@ class PointRanger:
         t = cm.t0_s + K[m] * d_mm / cm.c_mm_s
         return float(co.c_mm_s * (t - co.t0_s) / K[o])
 
+    def same_arrival(self, oa_mm: float, us_mm: float) -> bool:
+        """Whether an OA and a US reading are one pulse read twice: within pair_mm of each
+        other's arrival time (in OA mm; a reading at a gate's end can be a pulse's edge). Within ~6 mm an OA pulse at d read as a US echo
+        (~d / 2) lies within pair_mm of it: a pair of one pulse, its US reading half the
+        distance (a box's sweep passing its corners 4 mm away stored 132 US points 2.6 mm
+        off them). A true pair's two arrivals are d apart (one way and round trip)."""
+        return abs(self.other_reading_mm("us", us_mm) - oa_mm) < self.pair_mm
+
     def lone_by_window(self, wide: dict[str, tuple[float, float]],
                        window: tuple[float, float]) -> str | None:
         """The modality a lone pulse is read as, or None, from where the surface can be:
@@ -148,15 +156,21 @@ class PointRanger:
         w = self.pair_mm
         pairs = []  # (partner SNR, oa reading, us reading)
         d_us, snr_us = wide["us"]
+        oa_readings = [wide["oa"]]
         if np.isfinite(d_us):
             oa = self._range("oa", corr, d_us - w, d_us + w, ph, pretrigger)
-            if np.isfinite(oa[0]):
+            if np.isfinite(oa[0]) and not self.same_arrival(oa[0], d_us):
                 pairs.append((oa[1], oa, wide["us"]))
-        d_oa, snr_oa = wide["oa"]
-        if np.isfinite(d_oa):
-            us = self._range("us", corr, d_oa - w, d_oa + w, ph, pretrigger)
-            if np.isfinite(us[0]):
-                pairs.append((us[1], wide["oa"], us))
+            elif np.isfinite(oa[0]):  # the US reading was an OA pulse: read it as one (the
+                # wide OA reading can be a US echo over twice as strong, a paper face 4 mm
+                # away head on), then look for its echo
+                o = self.other_reading_mm("us", d_us)
+                oa_readings.append(self._range("oa", corr, o - w, o + w, ph, pretrigger))
+        for oa in oa_readings:
+            if np.isfinite(oa[0]):
+                us = self._range("us", corr, oa[0] - w, oa[0] + w, ph, pretrigger)
+                if np.isfinite(us[0]) and not self.same_arrival(oa[0], us[0]):
+                    pairs.append((us[1], oa, us))
         if pairs:
             _, oa, us = max(pairs, key=lambda p: p[0])
             return {"oa": oa if self.modality != "us" else (np.nan, oa[1]),

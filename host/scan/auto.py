@@ -21,9 +21,9 @@ from .first_look import cylinder_window
 from .fly import junction_speed_mm_s
 from .outline import Outline, OutlineKeepOut
 from .plan import Point, ScanPlan
+from .reach import US_MAX_INCIDENCE_DEG  # noqa: F401 (auto_executor, model.build)
 from .reconstruct import table_frame
 
-US_MAX_INCIDENCE_DEG = 15.0  # US echoes come back within this of head on (bench/sensor_limits.py)
 MAX_SLOPE = 1.0           # |dY/dX| of a follow line: X moves at >= 71 % of the path speed
 CANDIDATE_STEP_DEG = 15.0  # table angles the angle choice picks from
 EDGE_COLUMNS = 3          # columns a follow line runs on beside the surface (flat), each side

@@ -24,6 +24,7 @@ from ..files import shown
 from ..links.safety import KeepOut, UnsafeMove, check_move
 from ..ranging.calibrate import RangingSetup
 from ..ranging.point import PointRanger
+from .reach import box_passes
 
 MODALITIES = ("both", "oa", "us")
 MODES = ("step", "fly", "auto", "sweep")
@@ -253,12 +254,12 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
     middle 70 % of its width; every 4 mm step and shoot, every 2 mm fly; the modality given,
     else the material's (modality_for); a sweep of an object that is not round in passes
     across the beam, one where they would pass the plan's point limit: a box (centred by
-    its footprint) in four, the beam through the middles of four equal strips of its widest
-    side (w/8 and 3 w/8 to either side of the axis: its flat faces seen head on to their
-    corners, where a US echo comes back); one given a reach_mm (a round body with a handle,
-    met head on only through its axis) in three, the beam through the axis and a quarter of
-    the width to either side. Edit the file for more levels or a finer step
-    (docs/scanning.md)."""
+    its footprint) in as many as reach.box_passes gives, the beam through the middles of
+    equal strips of its widest side, its standoff brought in where its nearest faces would
+    be out of the sensor's reach head on (a 120 x 60 mm box: eight strips, 3 mm); one given a
+    reach_mm (a round body with a handle, met head on only through its axis) in three, the
+    beam through the axis and a quarter of the width to either side. Edit the file for
+    more levels or a finer step (docs/scanning.md)."""
     modality = modality_for(material) if modality is None else modality
     w, d, h = (float(x) for x in size_mm)
     if not (w > 0 and d > 0 and h > 0) or not all(map(math.isfinite, (w, d, h))):
@@ -293,9 +294,11 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
                     **({"feed_mm_min": AUTO_FEED_MM_MIN} if mode == "sweep" else {}))
     if mode == "sweep" and not round_:
         side = max(w, d)
-        if reach_mm is None:  # a box: four strips, in order (one move across a pass)
-            plan.offsets_mm = [mm(math.copysign(min(abs(k) * side / 8, 0.9 * plan.radius_mm),
-                                                k)) for k in (-3, -1, 1, 3)]
+        if reach_mm is None:  # a box: its strips, in order (one move across a pass)
+            plan.offsets_mm, plan.standoff_mm, _ = box_passes(
+                w, d, plan.radius_mm, plan.standoff_mm,
+                ("oa", "us") if modality == "both" else (modality,), AUTO_SPACING_MM,
+                MAX_OFFSETS)
         else:
             quarter = mm(min(side / 4, 0.9 * plan.radius_mm))
             plan.offsets_mm = [0.0, quarter, -quarter]

@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     n = actions.add_parser(
         "new", help="a first plan for an object from its size",
         description="Write OBJECT_ID.toml (or -o FILE): the object's bounding cylinder, one "
-                    "level at half its height (at most 40 mm), four angles, the middle 70 %% "
+                    "level at half its height (at most 40 mm), four angles, the middle 70 % "
                     "of its width. `dmdsm sim --list-scenes` gives the emulator's objects' "
                     "sizes; measure a real one with a ruler.")
     n.add_argument("object_id", metavar="OBJECT_ID", help="the object's name in the database")
@@ -39,7 +39,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "classification; one of the paper's seven or your own)")
     n.add_argument("--mode", choices=MODES, default="step",
                    help="step: step and shoot every 4 mm; fly: each line one move, every 2 mm "
-                        "(needs the sync wire: docs/firmware.md) (default step)")
+                        "(needs the sync wire: docs/firmware.md); auto: a first look, then "
+                        "lines that follow its outline; sweep: the table turning under the "
+                        "sensor, a ring every 2 mm of height (a box in passes across the "
+                        "beam, as many as its faces need: docs/scanning.md) (default step)")
     n.add_argument("--modality", choices=MODALITIES, default=None,
                    help="which distances the scan is for (default: the material's; us for "
                         "glass and steel, which give no OA pulse, oa for foam, else both)")

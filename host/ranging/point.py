@@ -89,10 +89,11 @@ class PointRanger:
 
     def same_arrival(self, oa_mm: float, us_mm: float) -> bool:
         """Whether an OA and a US reading are one pulse read twice: within pair_mm of each
-        other's arrival time (in OA mm; a reading at a gate's end can be a pulse's edge). Within ~6 mm an OA pulse at d read as a US echo
-        (~d / 2) lies within pair_mm of it: a pair of one pulse, its US reading half the
-        distance (a box's sweep passing its corners 4 mm away stored 132 US points 2.6 mm
-        off them). A true pair's two arrivals are d apart (one way and round trip)."""
+        other's arrival time (in OA mm; a reading at a gate's end can be a pulse's edge).
+        Within ~6 mm an OA pulse at d read as a US echo (~d / 2) lies within pair_mm of it:
+        a pair of one pulse, its US reading half the distance (a box's sweep passing its
+        corners 4 mm away stored 132 US points 2.6 mm off them). A true pair's two arrivals
+        are d apart (one way and round trip)."""
         return abs(self.other_reading_mm("us", us_mm) - oa_mm) < self.pair_mm
 
     def lone_by_window(self, wide: dict[str, tuple[float, float]],

@@ -8,6 +8,8 @@ import sys
 import numpy as np
 import pytest  # noqa: E402
 
+from dmdsm.host.scan.plan import modality_for
+
 pytestmark = pytest.mark.realtime  # serves the emulator in a subprocess, in real time
 
 PAPER = {"oa": (0.06, 0.06), "us": (0.15, 0.11)}
@@ -72,8 +74,12 @@ def test_demo_meets_the_paper_and_writes_the_report(tmp_path):
         # the same band swept: the laser busy from its first waveform to its last, and the
         # surface covered in it
         assert m["laser_duty_span"]["sweep"] >= 0.5, (name, m["laser_duty_span"])
-        # (2026-12-06: 0.56-0.68 on the boxes, 0.90-0.93 on the round ones)
-        assert max(m["coverage_levels"]["sweep"].values()) > 0.4, (name, m["coverage_levels"])
+        # in each modality the material answers in, of the truth in the sweep's own band
+        # (2026-12-06, code 7956017: 98.9-100 %; the tissue box's US 64.7 % before its
+        # passes and standoff came from reach.box_passes)
+        modality = modality_for(m["campaign"]["material"])
+        for mod in ("oa", "us") if modality == "both" else (modality,):
+            assert m["coverage_levels"]["sweep"][mod] >= 0.95, (name, m["coverage_levels"])
     assert r.returncode == 0 and all(s["ok"] for s in st.values()), r.stdout[-2000:]
     html = (out / "report.html").read_text()
     # Fig. 2, Fig. 3, seven Fig. 4s, three Fig. 5s

@@ -11,7 +11,9 @@ points per emulated second, coverage at 2 mm of the emulator's true reachable su
 the band (bench/coverage_truth.py; the same band for every mode, so the rows compare; per
 modality: what OA can reach from some table angle within 60 deg of incidence, US within 15,
 the sensor's limits in docs/scanning.md), the
-mean and 95th percentile of the points' distance to the true surface, the laser's duty
+mean and 95th percentile of the points' distance to the true surface (and, per mode, its
+mean and std by the incidence the beam met the true surface at, against the paper's head-on
+figures: bench/incidence_accuracy.py), the laser's duty
 (host/scan/coverage.py) and keep-out violations: laser shots whose true sensor position came
 within 2 mm (the keep-out margin) of the true object surface. The ranging calibration is
 measured once, on the block, as a user does with the gauge block, and serves every scan; the
@@ -35,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 from coverage_truth import reachable_truth  # bench/, this script's folder
+from incidence_accuracy import PAPER_MM, by_incidence, pooled, text
 from scipy.spatial import cKDTree
 
 from dmdsm.host.links.sensor import SensorClient
@@ -263,6 +266,10 @@ def one_scan(obj: str, mode: str, plan, setup, seed: int, speed: float, z_band: 
            "coverage": {m: coverage(reference["surface"][m], pts[m]["P"], SPACING_MM)
                         for m in MODS},
            "distance": {m: truth_distance(pts[m]["P"], truths) for m in MODS},
+           "incidence": {m: by_incidence(pts[m]["P"], pts[m]["S"], pts[m]["theta_deg"],
+                                         np.asarray(cal["v"]), np.asarray(cal["n"]),
+                                         np.asarray(cal["X_R"]), truths, object_frame)
+                         for m in MODS},
            "duty": laser_duty(stored, plan.average, sim.cfg.rep_rate_hz, sim_s),
            "keep_out": keep_out(np.asarray(shots, float).reshape(-1, 4), truths,
                                 np.asarray(cal["n"]), np.asarray(cal["X_R"])),
@@ -332,6 +339,12 @@ def summary(rows: list[dict], modes: list[str]) -> list[str]:
                                           f" (misses by {v})"))
         out.append(f"{mode:5s} ({len(ok)} scans" + (f", {failed} failed" if failed else "") +
                    "): " + "; ".join(parts))
+        for m in MODS:  # |e| by incidence, every scan's points pooled
+            bins = pooled([r.get("incidence", {}).get(m) or [] for r in ok])
+            if any(b["n"] for b in bins):
+                out.append(f"      {m.upper()} |e| by incidence (deg: mean +- std mm (points); "
+                           f"paper head on {PAPER_MM[m][0]:g} +- {PAPER_MM[m][1]:g}): "
+                           + text(bins))
     return out
 
 

@@ -60,3 +60,38 @@ def test_a_deep_box_is_swept_from_closer_in_and_a_small_one_sees_all():
     offsets, standoff, shares = box_passes(50, 30, 30.2, 8.0, ("oa", "us"), 2.0, 9)
     assert standoff == 8.0 and len(offsets) == 5 and min(shares.values()) > 0.99
     assert len(box_passes(120, 60, radius, 8.0, ("oa",), 2.0, 9)[0]) < 8
+
+
+@given(st.floats(10.0, 90.0), st.floats(-80.0, 80.0), st.sampled_from([4, 12, 24]))
+def test_an_offset_pass_turns_slowly_enough_that_a_face_moves_little_in_a_waveform(
+        radius, offset, average):
+    """A pass offset o from the axis meets a flat face head on whose distance changes o mm
+    per radian: over one waveform's shots at its table speed, by at most SWEEP_SMEAR_MM (an
+    averaged pulse smeared over more depth ranges worse). Waveforms stay at most step_mm
+    apart on the cylinder, and the table within its limit."""
+    import math
+
+    from dmdsm.host.scan.plan import SWEEP_SMEAR_MM, ScanPlan, table_speed_deg_s
+
+    plan = ScanPlan("box", radius_mm=radius, mode="sweep", step_mm=2.0, average=average)
+    w = table_speed_deg_s(plan, 90.0, offset)
+    per_waveform = math.radians(w) * average / plan.laser_hz  # rad the table turns
+    assert abs(offset) * per_waveform <= SWEEP_SMEAR_MM + 1e-9
+    assert radius * per_waveform <= plan.step_mm + 1e-9 and w <= 90.0
+    assert w == table_speed_deg_s(plan, 90.0, -offset)
+    if abs(offset) * plan.step_mm / radius <= SWEEP_SMEAR_MM:  # slow enough already
+        assert w == table_speed_deg_s(plan, 90.0)
+
+
+def test_a_sweeps_planned_points_follow_each_pass_speed():
+    """A box's passes far off the axis turn more slowly: more waveforms a turn, as many as
+    plan.n_points counts."""
+    from dmdsm.host.scan.plan import plan_for_size
+    from dmdsm.host.scan.sweep import sweep_points, sweep_turns
+
+    plan = plan_for_size("tissues", (120, 60, 20), False, "paper", "sweep")
+    turns = sweep_turns(plan, np.array([0.0, 1.0, 0.0]), np.array([230.0, 290.0, 0.0]))
+    pts = sweep_points(plan, turns, 90.0)
+    assert len(pts) == plan.n_points()
+    per = {t.offset: sum(p.level == t.index for p in pts) for t in turns}
+    assert per[52.5] > 3 * per[7.5] and per[-52.5] == per[52.5]

@@ -45,7 +45,6 @@ from .plan import (
     expand,
     keep_outs,
     point_ranger,
-    table_speed_deg_s,
 )
 from .scanfile import ScanFileError, ScanWriter, read_scan
 from .sweep import Turn, beam_heights_mm, sweep_coverage, sweep_points, sweep_turns
@@ -104,8 +103,7 @@ def checked_points(plan: ScanPlan, calibration: dict) -> list[Point]:
         check_path(targets, labels, None, machine, zones)
     elif plan.mode == "sweep":  # the rings: straight in X, Y, Z from turn to turn
         turns = sweep_turns(plan, v, X_R, n)
-        points = sweep_points(plan, turns, table_speed_deg_s(
-            plan, machine.max_feedrate[machine.axis("A")]))
+        points = sweep_points(plan, turns, machine.max_feedrate[machine.axis("A")])
         targets, labels = sweep_path(turns)
         check_path(targets, labels, None, machine, zones)
     else:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .plan import Point, ScanPlan
+from .plan import Point, ScanPlan, table_speed_deg_s
 
 
 def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int,
@@ -91,7 +91,8 @@ def place_on_move(start: np.ndarray, delta: np.ndarray, steps_done: np.ndarray,
 class Turn:
     """One turn of a sweep: the sensor at (x, y) mm (the stage frame) while Z goes from z0 to
     z1 mm (a sweep's rings: z0 == z1) and the table turns from a0 to a1 deg, in one G1
-    (docs/scanning.md); pitch: the heights (mm) a ring stands for, z0 +- pitch / 2."""
+    (docs/scanning.md); pitch: the heights (mm) a ring stands for, z0 +- pitch / 2; offset:
+    its pass's, mm across the beam from the table axis (plan.offsets_mm)."""
 
     index: int
     x: float
@@ -101,6 +102,7 @@ class Turn:
     a0: float
     a1: float
     pitch: float = 0.0
+    offset: float = 0.0
 
     def steps(self, spu: Sequence[float]) -> tuple[int, int]:
         """(Z steps, table steps) of the move, as Marlin rounds each end to whole steps."""
@@ -144,7 +146,7 @@ def sweep_turns(plan: ScanPlan, v: np.ndarray, X_R: np.ndarray,
             zr = z + (ring + 0.5) * pitch
             i = len(turns)
             turns.append(Turn(i, float(x), float(y), zr, zr, 0.0 if i % 2 == 0 else 360.0,
-                              360.0 if i % 2 == 0 else 0.0, pitch))
+                              360.0 if i % 2 == 0 else 0.0, pitch, float(d)))
     return turns
 
 
@@ -159,12 +161,14 @@ def passes(turns: list[Turn]) -> list[list[Turn]]:
     return out
 
 
-def sweep_points(plan: ScanPlan, turns: list[Turn], speed_deg_s: float) -> list[Point]:
-    """The sweep's planned points: one per waveform the laser gives while a turn runs at
-    speed_deg_s (where they are expected; the stored ones are placed by the counts)."""
-    per = max(int(round(360.0 / speed_deg_s * plan.laser_hz / plan.average)), 1)
+def sweep_points(plan: ScanPlan, turns: list[Turn], a_max_deg_s: float) -> list[Point]:
+    """The sweep's planned points: one per waveform the laser gives while a turn runs at its
+    pass's speed (plan.table_speed_deg_s, the table at most a_max_deg_s; where they are
+    expected: the stored ones are placed by the counts)."""
     pts: list[Point] = []
     for t in turns:
+        speed = table_speed_deg_s(plan, a_max_deg_s, t.offset)
+        per = max(int(round(360.0 / speed * plan.laser_hz / plan.average)), 1)
         for c in range(per):
             f = c / per
             pts.append(Point(len(pts), t.x, t.y, t.z0 + f * (t.z1 - t.z0),

@@ -63,7 +63,7 @@ class SweepRun:
         self.quiet_ticks = SPEC.sync_quiet_ms * 1e-3 * self.tick_hz
         self.unix_minus_monotonic = time.time() - time.monotonic()
         self.spu = list(machine.steps_per_unit)
-        self.speed = table_speed_deg_s(plan, machine.max_feedrate[machine.axis("A")])
+        self.a_max = machine.max_feedrate[machine.axis("A")]  # deg/s
         self.finished: list[tuple[Turn, dict]] = []  # measured turns not stored yet
 
     def todo(self) -> list[Turn]:
@@ -135,7 +135,8 @@ class SweepRun:
             for t in todo:
                 if t.z0 != z:
                     self.stage.move(z=t.z0, feed_mm_min=self.plan.feed_mm_min)
-                self.stage.move(z=t.z1, a=t.a1, feed_mm_min=sweep_feed_mm_min(t, self.speed))
+                speed = table_speed_deg_s(self.plan, self.a_max, t.offset)
+                self.stage.move(z=t.z1, a=t.a1, feed_mm_min=sweep_feed_mm_min(t, speed))
                 z = t.z1
             while next_turn < len(todo):
                 new = sensor.stream_take(0.05)

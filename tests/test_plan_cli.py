@@ -62,6 +62,12 @@ def test_plan_new_says_what_a_sweep_or_an_auto_plan_scans_in_plain_numbers(tmp_p
     assert t.returncode == 0 and "3 mm outside a 68.1 mm cylinder; 8 passes" in t.stdout, \
         t.stdout
     assert load_plan(tmp_path / "tissues.toml").standoff_mm == 3.0
+    # a box so tall its passes would pass the point limit: one, and the plan says so
+    tall = run("plan", "new", "tall", "--size-mm", "120", "60", "200", "--material", "paper",
+               "--mode", "sweep", cwd=tmp_path)
+    assert tall.returncode == 0 and "passes" not in tall.stdout.splitlines()[0], tall.stdout
+    assert "note: one pass, through the axis, not 8: the plan has" in tall.stdout
+    assert "one pass" in load_plan(tmp_path / "tall.toml").notes
     foam = run("plan", "new", "foam", "--size-mm", "120", "60", "90", "--material", "foam",
                "--mode", "sweep", cwd=tmp_path)  # OA alone: in reach, seen to 30 deg
     assert foam.returncode == 0 and "8 mm outside a 68.1 mm cylinder; 4 passes" in \

@@ -88,6 +88,8 @@ def _say(args: argparse.Namespace, plan: object, head: str, path: Path) -> None:
         print(json.dumps({"file": str(path), "points": plan.n_points(), **asdict(plan)}))
     else:
         print(f"{head}: {_summary(plan)}")
+        if plan.notes:
+            print(f"note: {plan.notes}")
 
 
 def _summary(plan: object) -> str:

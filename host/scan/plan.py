@@ -156,11 +156,14 @@ class ScanPlan:
                             f"{self.mode} plan")
         n = len(self.levels_mm) * len(self.angles_deg) * \
             (2 * self.half_width_mm / self.step_mm + 1)  # float: no huge integers
-        if self.mode == "sweep":
-            n = (max(self.levels_mm) - min(self.levels_mm)) / self.step_mm * \
-                2 * math.pi * self.radius_mm / self.step_mm * len(self.offsets_mm)
-        if not n <= MAX_POINTS:
-            raise PlanError(f"the plan has {n:.3g} points (at most {MAX_POINTS}): raise step_mm "
+        limit = MAX_POINTS
+        if self.mode == "sweep":  # a ring's waveforms per pass (table_speed_deg_s, uncapped)
+            n = (max(self.levels_mm) - min(self.levels_mm)) / self.step_mm * sum(
+                2 * math.pi / min(self.step_mm / self.radius_mm,
+                                  SWEEP_SMEAR_MM / max(abs(o), 1e-9)) for o in self.offsets_mm)
+            limit = MAX_SWEEP_POINTS
+        if not n <= limit:
+            raise PlanError(f"the plan has {n:.3g} points (at most {limit}): raise step_mm "
                             f"or lower half_width_mm, or split the scan into several plans")
 
     def n_points(self) -> int:
@@ -313,7 +316,10 @@ def plan_for_size(object_id: str, size_mm: tuple[float, float, float], round_: b
             plan.offsets_mm = [0.0, quarter, -quarter]
         try:
             plan.validate()
-        except PlanError:  # the passes of a tall object over the point limit: one
+        except PlanError as e:  # the passes of a tall object over the point limit: one
+            plan.notes = (f"one pass, through the axis, not {len(plan.offsets_mm)}: "
+                          f"{str(e).split(':')[0]} with them; scan the height in several "
+                          f"plans (levels_mm) for them")
             plan.offsets_mm = [0.0]
     plan.validate()
     return plan
@@ -334,6 +340,7 @@ def point_ranger(plan: ScanPlan, setup: RangingSetup, n_samples: int, tick_hz: f
 
 
 MAX_POINTS = 200_000  # ~4 h of step and shoot; bounds the memory and time of a plan's check
+MAX_SWEEP_POINTS = 400_000  # a sweep's (~100 min at 66 waveforms/s; checked turn by turn)
 
 
 def _sensor_limits() -> dict[str, tuple[int, int]]:

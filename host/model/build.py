@@ -20,9 +20,9 @@ from ..calibration.result import joint_covariance
 from ..classify.materials import WINDOW, ClassifyError, FusedModel, scan_dataset
 from ..classify.model_file import check_provenance, load_model
 from ..ranging.calibrate import RangingSetup
-from ..scan.auto import US_MAX_INCIDENCE_DEG
 from ..scan.catalogue import list_scans, verify
 from ..scan.points import MODS, scan_points
+from ..scan.reach import US_MAX_INCIDENCE_DEG
 from ..scan.reconstruct import object_points
 from ..scan.scanfile import ScanData, ScanFileError, read_scan
 from .fuse import REASONS, covariance_parts, outliers, travel_covariance

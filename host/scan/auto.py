@@ -21,7 +21,6 @@ from .first_look import cylinder_window
 from .fly import junction_speed_mm_s
 from .outline import Outline, OutlineKeepOut
 from .plan import Point, ScanPlan
-from .reach import US_MAX_INCIDENCE_DEG  # noqa: F401 (auto_executor, model.build)
 from .reconstruct import table_frame
 
 MAX_SLOPE = 1.0           # |dY/dX| of a follow line: X moves at >= 71 % of the path speed

@@ -18,7 +18,6 @@ from ..links.interfaces import Stage, StreamSensor
 from ..links.safety import KeepOut, UnsafeMove
 from ..ranging.point import PointRanger
 from .auto import (
-    US_MAX_INCIDENCE_DEG,
     choose_angles,
     follow_keep_out,
     follow_points,
@@ -46,6 +45,7 @@ from .fly_executor import (
 )
 from .outline import Outline, check_moves, outline_from_points
 from .plan import AUTO_SPACING_MM, PlanError, Point, ScanPlan, keep_outs
+from .reach import US_MAX_INCIDENCE_DEG
 from .reconstruct import object_points, stage_points
 from .scanfile import ScanWriter
 

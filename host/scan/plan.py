@@ -157,10 +157,9 @@ class ScanPlan:
         n = len(self.levels_mm) * len(self.angles_deg) * \
             (2 * self.half_width_mm / self.step_mm + 1)  # float: no huge integers
         limit = MAX_POINTS
-        if self.mode == "sweep":  # a ring's waveforms per pass (table_speed_deg_s, uncapped)
+        if self.mode == "sweep":  # a ring's waveforms per pass, the table's limit aside
             n = (max(self.levels_mm) - min(self.levels_mm)) / self.step_mm * sum(
-                2 * math.pi / min(self.step_mm / self.radius_mm,
-                                  SWEEP_SMEAR_MM / max(abs(o), 1e-9)) for o in self.offsets_mm)
+                waveforms_per_turn(self, math.inf, o) for o in self.offsets_mm)
             limit = MAX_SWEEP_POINTS
         if not n <= limit:
             raise PlanError(f"the plan has {n:.3g} points (at most {limit}): raise step_mm "
@@ -176,10 +175,8 @@ class ScanPlan:
             m = load_machine()
             span = max(self.levels_mm) - min(self.levels_mm)
             rings = max(math.ceil(span / self.step_mm - 1e-9), 1)
-            speeds = [table_speed_deg_s(self, m.max_feedrate[m.axis("A")], o)
-                      for o in self.offsets_mm]
-            return rings * sum(max(int(round(360.0 / w * self.laser_hz / self.average)), 1)
-                               for w in speeds)
+            return rings * sum(waveforms_per_turn(self, m.max_feedrate[m.axis("A")], o)
+                               for o in self.offsets_mm)
         columns = math.floor(2 * self.half_width_mm / self.step_mm + 1e-9) + 1
         return len(self.levels_mm) * len(self.angles_deg) * columns
 
@@ -231,6 +228,13 @@ def table_speed_deg_s(plan: ScanPlan, a_max_deg_s: float, offset_mm: float = 0.0
     if offset_mm:
         w = min(w, SWEEP_SMEAR_MM / abs(float(offset_mm)))
     return min(math.degrees(w * plan.laser_hz / plan.average), a_max_deg_s)
+
+
+def waveforms_per_turn(plan: ScanPlan, a_max_deg_s: float, offset_mm: float = 0.0) -> int:
+    """The waveforms the laser gives in one 360 deg turn of a sweep's pass offset_mm across
+    from the axis, at its speed (table_speed_deg_s; the table at most a_max_deg_s)."""
+    speed = table_speed_deg_s(plan, a_max_deg_s, offset_mm)
+    return max(int(round(360.0 / speed * plan.laser_hz / plan.average)), 1)
 
 
 AUTO_SPACING_MM = 2.0  # an auto plan's levels apart (the coverage target's spacing)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .plan import Point, ScanPlan, table_speed_deg_s
+from .plan import Point, ScanPlan, waveforms_per_turn
 
 
 def counted_steps(timestamps: np.ndarray, sync_steps: np.ndarray, n_average: int,
@@ -163,12 +163,11 @@ def passes(turns: list[Turn]) -> list[list[Turn]]:
 
 def sweep_points(plan: ScanPlan, turns: list[Turn], a_max_deg_s: float) -> list[Point]:
     """The sweep's planned points: one per waveform the laser gives while a turn runs at its
-    pass's speed (plan.table_speed_deg_s, the table at most a_max_deg_s; where they are
+    pass's speed (plan.waveforms_per_turn, the table at most a_max_deg_s; where they are
     expected: the stored ones are placed by the counts)."""
     pts: list[Point] = []
     for t in turns:
-        speed = table_speed_deg_s(plan, a_max_deg_s, t.offset)
-        per = max(int(round(360.0 / speed * plan.laser_hz / plan.average)), 1)
+        per = waveforms_per_turn(plan, a_max_deg_s, t.offset)
         for c in range(per):
             f = c / per
             pts.append(Point(len(pts), t.x, t.y, t.z0 + f * (t.z1 - t.z0),

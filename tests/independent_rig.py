@@ -163,7 +163,7 @@ def _tip_rows(truth: dict, rig: Rig, ras: Raster, nz: Noise, rng: np.random.Gene
         -1, 1, 2)) / np.sqrt(2))  # toward the sensor
     # the tip stands 20 mm above the table, 10 mm toward the sensor from X_R
     T = truth["X_R"] + np.array([0.0, -10.0, 20.0])
-    hidden["tip"] = T
+    hidden["tip"], hidden["tip_axis"] = T, axis
     B = _perp_basis(v)
     rays = rig.spot_rays * rig.spot_w_mm
     offs = np.arange(-ras.tip_half, ras.tip_half + 1e-9, ras.tip_step)
@@ -262,8 +262,8 @@ def generate(truth: dict, seed: int, noise: Noise | str = "paper",
              hidden: dict | None = None) -> list[dict]:
     """Raw points (dicts with the rig CSV's columns) of the tip and edge steps for `truth`
     ({"v", "n", "X_R"}, arrays) with the given noise, raster and rig; `hidden`, if given,
-    gets the tip point ("tip") and each edge frame's actual axis ("axes": point,
-    direction)."""
+    gets the tip point ("tip"), the tip face's normal ("tip_axis") and each edge frame's
+    actual axis ("axes": point, direction)."""
     nz = NOISE_LEVELS[noise] if isinstance(noise, str) else noise
     ras = RASTERS[raster] if isinstance(raster, str) else raster
     rig = rig or Rig()

@@ -432,6 +432,7 @@ class Center(NamedTuple):
     cov_S: np.ndarray    # (3, 3) mm^2
     points: tuple[np.ndarray, np.ndarray]  # kept points' lateral offsets, depths
     front: float         # mean front depth added (mm; edges), for a beam square to it
+    plane: np.ndarray    # (3, k) the stage axes of the raster's plane (points' offsets)
 
 
 def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
@@ -467,21 +468,15 @@ def _center(S: np.ndarray, d: np.ndarray, amp: np.ndarray, threshold: float,
     else:
         cov = spread
     return Center(Sk.mean(axis=0), float(dk.mean()), cov, ((Sk - Sk.mean(axis=0)) @ U, dk),
-                  front)
+                  front, U)
 
 
-def depth_noise_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
-    """Variance (mm^2) of one raw depth's noise, pooled over center points: the kept raw
-    points' depths about their center point's mean plus one smooth trend across the raster
-    that all of them share (linear and quadratic in the two lateral axes of a tip raster;
-    up to the 4th power of the offset along an edge sweep). `points`: per center point the
-    kept raw points' lateral offsets from their centroid (n, k mm) and depths (n,).
-
-    The target's own shape - a tip face a few degrees off the beam, a filament's front the
-    spot model does not follow exactly - moves the raw depths across the raster the same way
-    in every frame but does not move a center point's depth, which is their mean at the
-    centroid; about their mean (sigma_P / n, §IV-C) it passed for noise: 0.003 mm claimed
-    for tip depths good to 0.0001 mm (docs/calibration.md)."""
+def _shared_trend(points: list[tuple[np.ndarray, np.ndarray]]
+                  ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The least-squares fit of every kept raw depth to its center point's mean plus one
+    smooth trend across the raster that all of them share (depth_noise_var): (residuals,
+    coefficients: the means, then the trend's, degrees of freedom, k lateral axes). With too
+    few points for a trend, the means alone."""
     k = points[0][0].shape[1] if points and points[0][0].ndim == 2 else 0
     L = np.vstack([p[0].reshape(len(p[1]), -1) for p in points]) if k else None
     d = np.concatenate([p[1] for p in points])
@@ -497,10 +492,43 @@ def depth_noise_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
     if dof < 2:  # too few points for a trend: the spread about each mean
         dof = len(d) - len(points)
         A = np.column_stack(cols[:len(points)])
+    coef = np.linalg.lstsq(A, d, rcond=None)[0]
+    return d - A @ coef, coef, dof, k
+
+
+def depth_noise_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Variance (mm^2) of one raw depth's noise, pooled over center points: the kept raw
+    points' depths about their center point's mean plus one smooth trend across the raster
+    that all of them share (linear and quadratic in the two lateral axes of a tip raster;
+    up to the 4th power of the offset along an edge sweep). `points`: per center point the
+    kept raw points' lateral offsets from their centroid (n, k mm) and depths (n,).
+
+    The target's own shape - a tip face a few degrees off the beam, a filament's front the
+    spot model does not follow exactly - moves the raw depths across the raster the same way
+    in every frame but does not move a center point's depth, which is their mean at the
+    centroid; about their mean (sigma_P / n, §IV-C) it passed for noise: 0.003 mm claimed
+    for tip depths good to 0.0001 mm (docs/calibration.md)."""
+    res, _, dof, _ = _shared_trend(points)
     if dof < 1:
         return 0.0
-    res = d - A @ np.linalg.lstsq(A, d, rcond=None)[0]
     return float(res @ res / dof)
+
+
+def depth_gradient(points: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(k,) how much a center point's depth changes per mm its centroid moves in the
+    raster's plane (mm/mm): the linear part, at the centroid, of the trend all the center
+    points share (depth_noise_var); zeros without a trend.
+
+    A center point's depth is the target's depth at its centroid, so where the raster
+    misses the target's centre by e, the depth misses by this gradient . e: on a tip face
+    3 deg off the beam, a lateral error of 8 um comes with 0.4 um along the beam, which
+    the covariance must carry. Without it the point looked exact along the stage axis the
+    raster does not step (nothing but the depth's noise there, 0.01 um with almost no
+    noise), and that false precision tilted v's reported std: |z| up to 7.5
+    (docs/calibration.md)."""
+    _, coef, _, k = _shared_trend(points)
+    return coef[len(points):len(points) + k] if len(coef) >= len(points) + k else \
+        np.zeros(k)
 
 
 def sweep_depth_var(points: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -633,13 +661,15 @@ def center_points(raw: dict[str, np.ndarray], modality: str = "oa", threshold: f
                                f"turntable angles")
     _edge_angles(frames, thetas)
     ec = [e[1] for e in edges]
+    tip_points = [t.points for t in tips]
+    grad = depth_gradient(tip_points) if len({t.plane.shape for t in tips}) == 1 else None
     return CalibrationData(
         np.array([t.S for t in tips]), np.array([t.d for t in tips]),
         np.array([c.S for c in ec]), np.array([c.d for c in ec]),
         np.array([e[0] for e in edges]), np.array(thetas), sigma_theta_deg=sigma_theta_deg,
         tip_cov_S=np.array([t.cov_S for t in tips]),
-        tip_var_d=depth_noise_var([t.points for t in tips]) / np.array([len(t.points[1])
-                                                                      for t in tips]),
+        tip_var_d=depth_noise_var(tip_points) / np.array([len(t.points[1]) for t in tips]),
+        tip_grad=None if grad is None else np.array([t.plane @ grad for t in tips]),
         edge_cov_S=np.array([c.cov_S for c in ec]),
         edge_var_d=sweep_depth_var([c.points for c in ec]) / np.array([len(c.points[1])
                                                                       for c in ec]),

@@ -39,6 +39,7 @@ class Problem(NamedTuple):
     radius_mm: float        # filament radius: edge depths moved onto its axis
     sigma_theta_deg: float  # table angle reading noise
     edge_front: np.ndarray  # (m,) the front depth in edge_d for a square beam (mm)
+    tip_grad: np.ndarray    # (k, 3) a tip depth's change per mm of its stage reading's error
 
 
 class Params(NamedTuple):
@@ -110,10 +111,13 @@ def gauge_fix(v0: np.ndarray, n0: np.ndarray, xr0: np.ndarray, tip0: np.ndarray,
 def _tip(pb: Problem, P: Params, scale: float, extra: float = 0.0
          ) -> tuple[np.ndarray, np.ndarray]:
     """Each tip center point's offset from the tip (k, 3) and its covariance: the stage
-    reading's (scaled) plus its depth variance (with the extra) along v."""
+    reading's (scaled), carried with the depth error it brings (g . dS along v: the
+    point stays on the tip's face), plus its depth variance (with the extra) along v."""
     X = pb.tip_S + pb.tip_d[:, None] * P.v - P.tip
     vd = pb.tip_var_d + extra
-    return X, scale * pb.tip_cov_S + vd[:, None, None] * np.outer(P.v, P.v)
+    M = np.eye(3)[None] + P.v[None, :, None] * pb.tip_grad[:, None, :]  # dX = M dS
+    cov_S = np.einsum("kij,kjl,kml->kim", M, pb.tip_cov_S, M)
+    return X, scale * cov_S + vd[:, None, None] * np.outer(P.v, P.v)
 
 
 def _edges(pb: Problem, P: Params, scale: float, extra: float = 0.0

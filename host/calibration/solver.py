@@ -129,6 +129,9 @@ class CalibrationData:
     tip_var_d: np.ndarray | None = None   # (k,) mm^2
     edge_cov_S: np.ndarray | None = None  # (m, 3, 3)
     edge_var_d: np.ndarray | None = None  # (m,)
+    # (k, 3) mm/mm: how a tip center point's depth follows its stage reading's error (the
+    # face's slope across the raster: center_points.depth_gradient); None: not at all
+    tip_grad: np.ndarray | None = None
     # (m,) mm: the part of each edge depth that moved it from the front surface onto the
     # axis for a beam square to the filament (center_points: front_depth_mm); the MLE
     # divides it by the sine of the beam's angle to the filament
@@ -243,9 +246,11 @@ def mle_problem(data: CalibrationData, frames: np.ndarray, thetas: list[float]) 
     edge_cS, edge_vd = data.point_covs("edge")
     front = np.zeros(len(data.edge_d)) if data.edge_front_mm is None else \
         np.asarray(data.edge_front_mm, float)
+    grad = np.zeros((len(data.tip_d), 3)) if data.tip_grad is None else \
+        np.asarray(data.tip_grad, float)
     return mle.Problem(data.tip_S, data.tip_d, tip_cS, tip_vd, data.edge_S, data.edge_d,
                        edge_cS, edge_vd, data.edge_frame, frames, thetas,
-                       data.filament_radius_mm, data.sigma_theta_deg, front)
+                       data.filament_radius_mm, data.sigma_theta_deg, front, grad)
 
 
 def solve(data: CalibrationData, refine: bool = True, scatter_from_residuals: bool = True

@@ -3,6 +3,7 @@ runs far slower than the wall is waited for, a real board (nothing published) is
 
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -61,3 +62,43 @@ def test_a_board_a_hundred_times_slower_than_the_wall_still_answers():
             shots = c.acquire(3)
         assert shots.received.all(), shots.received
     assert BoardClock(emu.sensor).now() is None  # removed when the emulator stops
+
+
+@pytest.mark.realtime
+def test_a_host_starved_for_a_moment_costs_the_board_no_laser_shot(monkeypatch):
+    """The emulator's time is its own: a host that stops reading for a while (starved of CPU
+    beside it, as on a loaded machine, where the test's host even shares its process) holds
+    the simulation instead of filling the pty, the board's link backing up and the board
+    skipping laser shots, as for a host too slow for the board (a sweep under load once
+    stored 220 of its 366 waveforms a turn, likely so). Each waveform 2 kB every 16 ms of
+    the board's time: a 2.5 s stall fills the pty's ~130 kB many times over (14 295 shots
+    skipped before the hold)."""
+    stall = threading.Event()
+    chunk_reader = SensorClient._chunk_reader
+
+    def stalling(self):
+        read = chunk_reader(self)
+
+        def r():
+            if stall.is_set():
+                time.sleep(2.5)  # the reader thread, as the scheduler might hold it
+                stall.clear()
+            return read()
+        return r
+
+    monkeypatch.setattr(SensorClient, "_chunk_reader", stalling)
+    with Emulator(SimConfig(seed=4), speed=20.0) as emu:
+        with SensorClient(emu.sensor) as sc:
+            sc.configure(n_samples=1024, n_average=16)
+            sc.stream_start()
+            got, end = [], time.monotonic() + 300
+            while len(got) < 20 and time.monotonic() < end:
+                got += sc.stream_take(0.5)
+            t0 = emu.sim.t
+            stall.set()
+            while (len(got) < 200 or stall.is_set()) and time.monotonic() < end:
+                got += sc.stream_take(0.5)
+            rest, change = sc.stream_stop()
+    ids = [int(w.shot_id) for w in got + rest]
+    assert len(ids) >= 200 and emu.sim.t - t0 > 2.0  # the board ran on after the stall
+    assert change["triggers_skipped"] == 0 and ids == list(range(len(ids))), change

@@ -171,3 +171,26 @@ def test_the_plan_points_are_grouped_into_lines_of_one_angle_and_level():
     assert [ln.index for ln in lines] == [0, 1, 2]
     assert [[p.index for p in ln.points] for ln in lines] == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
     assert lines[0].direction == 1.0 and (lines[0].x_first, lines[0].x_last) == (0.0, 2.0)
+
+
+def test_shots_the_board_skipped_on_a_line_are_counted_not_lost():
+    """A board whose waveform slots all waited for the link skipped laser shots: the line
+    has fewer waveforms, each placed (kept), and the run counts the shots in its summary."""
+    motion = LineMotion(80.0, 140.0, 83.33, ACCEL, SPU)
+    run = fly_run(motion)
+    stop = run.sensor.stream_stop
+
+    def skipping():  # every other average's 12 shots skipped: the ids stay consecutive
+        waves, change = stop()
+        kept = waves[::2]
+        for i, w in enumerate(kept):
+            w.shot_id, w.triggers_skipped = i, 12 * i  # the board's count, on each waveform
+        return kept, {**change, "triggers_skipped": 12 * (len(waves) - len(kept))}
+
+    run.sensor.stream_stop = skipping
+    rows = run.measure(LINE, motion)
+    full = fly_run(motion).measure(LINE, motion)  # the same line, no shot skipped
+    # the waveforms left are at the line's speed (their counted advance spans the shots
+    # skipped between them) and kept: about half of a line with none skipped
+    assert 0.4 * len(full["x"]) <= len(rows["x"]) and run.stats.lost == 0
+    assert run.stats.skipped > 0 and run.stats.skipped % 12 == 0

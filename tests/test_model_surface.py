@@ -186,9 +186,12 @@ def test_20k_points_build_in_seconds():
     P, nr, dist = sphere(1.0, R=40.0)
     assert len(P) > 20000
     Q, cov, vd = measure(P, nr, OA, rng)
-    t = time.perf_counter()
+    # the work it takes, in this process's CPU seconds (6.5 s on 2026-12-07): a loaded
+    # machine (make test beside two busy loops) stretches the wall clock 3x, not the work;
+    # bench/model.py has the wall-clock figures of whole scans
+    t = time.process_time()
     m = build_surface(Q, cov, vd)
-    assert time.perf_counter() - t < 15.0    # a few seconds on 2 idle cores
+    assert time.process_time() - t < 15.0
     assert m.supported.all()
 
 

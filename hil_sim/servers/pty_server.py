@@ -16,6 +16,13 @@ from ..physics.objects import SCENES
 from .runner import Simulation
 
 MAX_PENDING = 1 << 20  # bytes kept for a host that does not read; older output is dropped
+# a host behind (the sensor's pty full: it has not read ~64 kB the board sent) holds the
+# simulation up to this long (s, wall clock) before the board's link backs up and it skips
+# laser shots: the emulator's time is its own (it runs behind the wall clock whenever its
+# CPU is short), so a host starved of CPU beside it (a busy machine; the test's host shares
+# its process) is not taken for a host too slow for the board. A host that stopped reading
+# for good gets the board's back-pressure after this wait, as on hardware.
+HOST_HOLD_S = 5.0
 
 
 class Port:
@@ -77,6 +84,7 @@ class PtyServer:
             d.mkdir(parents=True, exist_ok=True)
         self.ports = {name: Port(name, d) for name in ("sensor", "stage")}
         self._stop = threading.Event()
+        self._behind_since: float | None = None  # wall clock (s) the host fell behind
         self.lock = threading.Lock()  # held while the simulation steps (truth() readers)
         # what a user does by hand on the real machine: `echo rig_vertical > DIR/scene`
         self.scene_file = d / "scene" if d else None
@@ -146,7 +154,11 @@ class PtyServer:
                 self._take_input(readable)
                 target = sim0 + (time.monotonic() - wall0) * self.speed
                 left = min(max(target - self.sim.t, 0.0), 0.05)
+                held = False
                 while True:  # advance in short chunks and pump the ptys between them
+                    held = self._host_behind()
+                    if held:  # the simulation waits for the host (time held)
+                        break
                     # a full pty holds the device's transmitter, as USB flow control would
                     self.sim.sensor.link_blocked = len(self.ports["sensor"].pending) > 65536
                     dt = min(left, 0.005)
@@ -167,6 +179,25 @@ class PtyServer:
                     except (OSError, ValueError):
                         more = []
                     self._take_input(more)
+            if held:  # until the host has read some (the pty takes more) or 10 ms
+                sensor = self.ports["sensor"]
+                try:
+                    select.select([], [sensor.master], [], 0.01)
+                except (OSError, ValueError):
+                    pass
+                self._flush(sensor)
+
+    def _host_behind(self) -> bool:
+        """True while the sensor's host has left output in the full pty, for up to
+        HOST_HOLD_S (s, wall clock) of each such spell."""
+        p = self.ports["sensor"]
+        if not p.pending or p.master < 0:
+            self._behind_since = None
+            return False
+        now = time.monotonic()
+        if self._behind_since is None:
+            self._behind_since = now
+        return now - self._behind_since < HOST_HOLD_S
 
     def _take_input(self, readable: list[int]) -> None:
         """Bytes the host wrote to the readable ports, into the simulation now."""
@@ -192,7 +223,12 @@ class PtyServer:
             if self.sim.t >= p.down_until:
                 p.open()
             return
-        if p.pending:
+        self._flush(p)
+
+    @staticmethod
+    def _flush(p: Port) -> None:
+        """Write what the pty takes of the port's pending output."""
+        if p.pending and p.master >= 0:
             try:
                 n = os.write(p.master, bytes(p.pending))
                 del p.pending[:n]

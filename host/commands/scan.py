@@ -124,6 +124,10 @@ def cmd_scan(args: argparse.Namespace) -> int:
               f"to do (--scan-id NAME starts another)")
         return 0
     summary = run.summary()
+    if run.stats.skipped:  # the plan counted on every shot: say why the points are fewer
+        print(f"scan {run.scan_id}: the sensor board skipped {run.stats.skipped} laser shots, "
+              f"its waveform slots full while the host did not read the link (a busy host "
+              f"computer?); the points are fewer than planned, none misplaced", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:

@@ -355,6 +355,7 @@ def _add(stats: ScanStats, more: ScanStats) -> None:
     """Add a later part's statistics to the run's."""
     stats.stored += more.stored
     stats.lost += more.lost
+    stats.skipped += more.skipped
     stats.store_s += more.store_s
     stats.wall_s += more.wall_s
     for k in stats.phase_s:

@@ -23,6 +23,9 @@ class ScanStats:
 
     stored: int = 0
     lost: int = 0
+    # laser shots the board skipped while streaming: every waveform slot waited for the
+    # link, so the host did not read in time (a streamed plan counts on every shot)
+    skipped: int = 0
     phase_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(PHASES, 0.0))
     store_s: float = 0.0
     wall_s: float = 0.0

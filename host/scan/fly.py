@@ -127,11 +127,14 @@ def counted_x(motion: LineMotion, sync_steps: np.ndarray, n_average: int) -> np.
 
 
 def at_line_speed(x_mm: np.ndarray, v_mm_s: float, n_average: int, laser_period_s: float,
-                  tolerance: float = CRUISE_TOLERANCE) -> np.ndarray:
+                  tolerance: float = CRUISE_TOLERANCE,
+                  shots_apart: np.ndarray | None = None) -> np.ndarray:
     """Waveforms that moved at the line speed: the counted advance to the previous or the
     next waveform is the planned one within `tolerance` (a waveform deep in a ramp moves
-    less on both sides)."""
-    want = v_mm_s * n_average * laser_period_s
+    less on both sides). shots_apart: laser shots from each waveform's first to the next's
+    (n_average, more where the board skipped shots between them; len(x_mm) - 1)."""
+    gaps = n_average if shots_apart is None else np.asarray(shots_apart, dtype=np.float64)
+    want = v_mm_s * gaps * laser_period_s
     ok = np.abs(np.abs(np.diff(x_mm)) / want - 1.0) <= tolerance
     out = np.zeros(len(x_mm), bool)
     out[1:] |= ok

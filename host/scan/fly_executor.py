@@ -398,6 +398,7 @@ class FlyRun:
                 time.sleep(0.005)
         finally:
             waves, change = sensor.stream_stop()
+            self.stats.skipped += change.get("triggers_skipped", 0)
         after = sensor.clock_exchanges(1)
         self.exchanges += before + after
         if not waves:
@@ -421,7 +422,11 @@ class FlyRun:
                                f"(docs/firmware.md)?")
         n_avg = int(waves[0].n_average)
         tick_hz = self.tick_hz
-        period = float(np.median(np.diff(ts))) / n_avg / tick_hz if len(ts) > 1 else \
+        # consecutive averages are n_avg shots apart, plus the shots the board skipped
+        # between them (its slots all waiting for the link; each waveform carries the count)
+        skipped = np.array([int(getattr(w, "triggers_skipped", 0)) for w in waves], np.int64)
+        shots = n_avg + np.diff(skipped) % (1 << 32)
+        period = float(np.median(np.diff(ts) / shots)) / tick_hz if len(ts) > 1 else \
             1.0 / plan.laser_hz
         if abs(period * plan.laser_hz - 1) > LASER_TOLERANCE:
             raise FlyScanError(f"the laser fires at {1 / period:.1f} Hz but the plan says "
@@ -439,7 +444,7 @@ class FlyRun:
             except ValueError as e:
                 raise LineRejected(str(e)) from None
         x = counted_x(motion, np.array([w.sync_steps for w in waves]), n_avg)
-        cruise &= at_line_speed(path.s_at(x), v, n_avg, period)
+        cruise &= at_line_speed(path.s_at(x), v, n_avg, period, shots_apart=shots)
         lo = min(line.x_first, line.x_last) - plan.step_mm / 2
         hi = max(line.x_first, line.x_last) + plan.step_mm / 2
         keep = cruise & (x >= lo) & (x <= hi)

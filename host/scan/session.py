@@ -69,6 +69,7 @@ class ScanRun:
         s = self.stats
         return {"scan_id": self.scan_id, "file": str(self.path), "points": self.points,
                 "stored_now": s.stored, "lost_waveforms": s.lost,
+                "skipped_shots": s.skipped,
                 "wall_s": round(s.wall_s, 2),
                 "points_per_s": round(s.stored / s.wall_s, 3) if s.wall_s else 0,
                 "ms_per_point": {k: round(v, 2) for k, v in s.per_point_ms().items()},

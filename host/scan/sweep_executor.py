@@ -189,6 +189,7 @@ class SweepRun:
                     t0 = time.monotonic()
         finally:
             rest, change = sensor.stream_stop()
+            self.stats.skipped += change.get("triggers_skipped", 0)
             if any(change[k] for k in LOSS_COUNTERS):
                 self.stats.lost += sum(change[k] for k in LOSS_COUNTERS)
         self.exchanges += before

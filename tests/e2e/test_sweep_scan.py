@@ -22,11 +22,12 @@ from fly_scan_helpers import (
 
 from dmdsm.host.links.sensor import SensorClient
 from dmdsm.host.scan.coverage import coverage, laser_duty
-from dmdsm.host.scan.plan import ScanPlan
+from dmdsm.host.scan.plan import ScanPlan, waveforms_per_turn
 from dmdsm.host.scan.points import scan_points
 from dmdsm.host.scan.reconstruct import object_points
 from dmdsm.host.scan.scanfile import read_scan
 from dmdsm.host.scan.sweep import sweep_coverage, sweep_turns
+from dmdsm.marlin_patch import load_machine
 
 PLAN = dict(radius_mm=31.0, height_mm=40.0, levels_mm=[14.0, 20.0], angles_deg=[0.0],
             step_mm=2.0, average=12, mode="sweep", feed_mm_min=9000.0)
@@ -40,7 +41,10 @@ def swept(emulator, tmp_path, seed, **plan_keys):
     plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, **plan_keys})
     shots = record_poses(emu.sim)
     run = scan_in_process(emu, SensorClient(emu.sensor), plan, cal, text, ranging, tmp_path)
-    assert run.status == "complete" and run.stats.lost == 0
+    # every shot in a waveform: none lost, none skipped by the board for want of a free
+    # slot (the host not reading in time; test_a_link_too_slow_... shows that case)
+    assert run.status == "complete" and (run.stats.lost, run.stats.skipped) == (0, 0), \
+        run.summary()
     return emu, cal, plan, shots, run, read_scan(run.path, waveforms=False)
 
 
@@ -154,6 +158,36 @@ def test_ctrl_c_mid_sweep_and_the_same_command_resumes_after_the_last_turn(emula
     first = cut.points["point_index"] == 0
     assert np.array_equal(whole.points["timestamp"][:first.sum()], cut.points["timestamp"][first])
     assert summary["points"] == len(whole.points["timestamp"])
+
+
+def test_a_link_too_slow_for_the_sweep_skips_shots_and_the_scan_says_so(emulator, tmp_path):
+    """The board skips a laser shot when every waveform slot waits for the link: a host that
+    does not read in time, or here a link slower than the plan's waveforms (100 kB/s
+    against ~170). The sweep completes with fewer points, each still placed where its shots
+    were, and says how many shots were skipped, in its summary and in one line."""
+    emu = emulator(speed=4.0, scene="aluminium_block", seed=36,
+                   sensor_link_bytes_per_s=100_000.0)
+    _, cal, _, _ = setup(emu, tmp_path)
+    plan = ScanPlan("aluminium_block", "aluminium", **{**PLAN, "levels_mm": [14.0, 16.0]})
+    (tmp_path / "plan.toml").write_text(plan.to_toml())
+    shots = record_poses(emu.sim)
+    r = subprocess.run(scan_cmd(emu, tmp_path, "slow", "--json"), capture_output=True,
+                       text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    p = read_scan(tmp_path / "db" / "scans" / "slow.h5", waveforms=False).points
+    turns = sweep_turns(plan, cal["v"], cal["X_R"], cal["n"])
+    per_turn = [int(np.sum(p["point_index"] == k)) for k in range(len(turns))]
+    skipped = summary["skipped_shots"]
+    # the link carries ~60 % of the waveforms: the rest of the shots skipped, none lost
+    assert summary["lost_waveforms"] == 0 and skipped > 0.2 * len(shots), (summary, len(shots))
+    m = load_machine()
+    planned = waveforms_per_turn(plan, m.max_feedrate[m.axis("A")])  # 366 a turn here
+    assert all(0.3 * planned < k < 0.8 * planned for k in per_turn), (per_turn, planned)
+    lines = [x for x in r.stderr.splitlines() if "skipped" in x]
+    assert len(lines) == 1 and f"skipped {skipped} laser shots" in lines[0], r.stderr
+    err = np.abs(pose_errors(p, shots))
+    assert err[:, :3].max() < 0.015 and err[:, 3].max() < 0.15, err.max(axis=0)
 
 
 def test_a_sweep_without_the_tables_sync_wire_says_what_to_wire(emulator, tmp_path):

@@ -34,6 +34,20 @@ class StageLink:
                 out.append(line.decode(errors="replace").strip())
         return out
 
+    def run_for(self, stage_s: float) -> list[str]:
+        """Every line received while the stage's own clock advances by stage_s seconds: a
+        loaded machine runs the emulator behind the wall clock, so a wall-clock wait can end
+        before the stage has moved at all (a real Marlin's clock is the wall clock)."""
+        t0, out = self.clock(), []
+        budget_s = 120 + stage_s / self.speed
+        end = time.monotonic() + budget_s
+        while self.clock() - t0 < stage_s:
+            if time.monotonic() > end:
+                raise TimeoutError(f"the stage's clock did not advance {stage_s} s within "
+                                   f"{budget_s:.0f} s of wall time")
+            out += self.lines(0.01)
+        return out + self.lines(0.05)  # what it sent up to then, still on its way
+
     def _read(self) -> bytes:
         """What has arrived, or the next byte within the port timeout: read(4096) would wait
         out the whole timeout for a short reply (1 s of the emulator's time at 20x)."""

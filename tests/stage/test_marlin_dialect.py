@@ -48,7 +48,7 @@ def test_line_number_gap_and_missing_checksum_are_errors(stage):
 def test_a_repeated_line_gets_no_reply(stage):
     stage.send("G90")
     stage.raw(stage.numbered("G90", n=stage.n))
-    assert [x for x in stage.lines(0.5) if x] == []
+    assert [x for x in stage.run_for(0.5) if x] == []
     assert OK.match(stage.send("G90")[-1])
 
 
@@ -129,7 +129,7 @@ def test_turntable_axis_a_in_degrees_with_busy_keepalive(stage):
 def test_quick_stop_leaves_the_table_part_way(stage):
     stage.send("G92 A0")
     stage.send(f"G1 A3600 F{LIMITS.max_feedrate[3] * 60:.0f}")
-    stage.lines(1.0 / stage.speed)
+    stage.run_for(1.0)
     mid = stage.send("M114 R")[0]
     assert 0 < _pos(mid)["A"] < 3600
     stage.raw("M410\n")
@@ -141,7 +141,7 @@ def test_quick_stop_leaves_the_table_part_way(stage):
 def test_an_unnumbered_m410_answers_once_the_planner_is_clean(stage):
     stage.send("G92 A0")
     stage.send(f"G1 A3600 F{LIMITS.max_feedrate[3] * 60:.0f}")
-    stage.lines(0.5 / stage.speed)
+    stage.run_for(0.5)
     stage.raw("M410\n")
     t0, w0 = stage.clock(), time.monotonic()
     got = b""
@@ -161,7 +161,7 @@ def test_an_unnumbered_m410_answers_once_the_planner_is_clean(stage):
 
 def test_m154_auto_reports_without_ok(stage):
     stage.send("M154 S1")
-    lines = stage.lines(2.5 / stage.speed + 0.3)
+    lines = stage.run_for(2.8)
     reports = [x for x in lines if x.startswith("X:")]
     assert len(reports) >= 2 and not any(x.startswith("ok") for x in lines)
     stage.send("M154 S0")
@@ -173,7 +173,7 @@ def test_m154_auto_reports_without_ok(stage):
 def test_a_numbered_m105_answers_ok_without_line_number(stage):
     stage.raw(stage.numbered("M105", n=stage.n + 1))
     stage.n += 1
-    replies = stage.lines(0.5)
+    replies = stage.run_for(0.5)
     assert "ok T:0" in [x.split(" /")[0] for x in replies], replies
     assert not any(OK.match(x) for x in replies)  # proves nothing about line numbers
 
@@ -254,7 +254,7 @@ def test_g92_during_a_move_prints_where_the_steppers_are_now(stage):
     end = start + round(turn * LIMITS.steps_per_unit[3])
     here = _pos(stage.send("M114")[0])["A"]
     stage.send(f"G1 A{here + turn:.2f} F{LIMITS.max_feedrate[3] * 60:.0f}")
-    stage.lines(1.0 / stage.speed)
+    stage.run_for(1.0)
     report = stage.send("G92 A5")[0]
     assert _pos(report)["A"] == 5.0
     assert start < _counts(report)["A"] < end  # part way: the steppers, not the target
@@ -288,7 +288,7 @@ def test_a_line_error_inside_a_burst_drops_the_lines_behind_it(stage):
     burst = (stage.numbered("G92 A1") + stage.numbered("G92 A2", good_checksum=False) +
              stage.numbered("G92 A7") + stage.numbered("G92 A9"))
     stage.raw(burst)
-    replies = stage.lines(1.5 / stage.speed + 0.5)
+    replies = stage.run_for(2.0)
     errors = [x for x in replies if x.startswith("Error:")]
     assert errors[0] == f"Error:checksum mismatch, Last Line: {k + 1}"
     assert replies[replies.index(errors[0]) + 1] == f"Resend: {k + 2}"

@@ -126,8 +126,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
     summary = run.summary()
     if run.stats.skipped:  # the plan counted on every shot: say why the points are fewer
         print(f"scan {run.scan_id}: the sensor board skipped {run.stats.skipped} laser shots, "
-              f"its waveform slots full while the host did not read the link (a busy host "
-              f"computer?); the points are fewer than planned, none misplaced", file=sys.stderr)
+              f"every waveform slot waiting for the link (the host did not read in time, or "
+              f"the link is slower than the plan's waveforms: a higher average); the points "
+              f"are fewer than planned, none misplaced", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:

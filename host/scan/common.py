@@ -24,7 +24,8 @@ class ScanStats:
     stored: int = 0
     lost: int = 0
     # laser shots the board skipped while streaming: every waveform slot waited for the
-    # link, so the host did not read in time (a streamed plan counts on every shot)
+    # link (the host did not read in time, or the link is slower than the waveforms); a
+    # streamed plan counts on every shot
     skipped: int = 0
     phase_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(PHASES, 0.0))
     store_s: float = 0.0

@@ -187,9 +187,9 @@ def test_a_mug_handles_inner_face_is_reachable_only_in_part(truths):
 
 def test_reachable_surface_is_bounded_and_fast(truths):
     _, truth = truths["bowl"]
-    t = time.perf_counter()
+    t = time.process_time()  # CPU seconds: a loaded machine stretches the wall clock
     q, qn = reachable_surface(truth, V, N, spacing_mm=1.0)
-    assert time.perf_counter() - t < 10.0
+    assert time.process_time() - t < 10.0
     assert q.shape == qn.shape and q.shape[1] == 3
     assert np.allclose(np.linalg.norm(qn, axis=1), 1.0)
     all_p, _ = surface_samples(truth, 1.0)

@@ -191,10 +191,10 @@ def test_continuous_angles_are_fast_and_the_same_points():
     are object_points' (checked on a subset, which object_points does one angle at a time)."""
     rng = np.random.default_rng(2)
     S, d, th = scan(rng, 100_000)
-    t = time.perf_counter()
+    t = time.process_time()  # the work, not a loaded machine's wall clock (1.0-1.5 s there)
     P, cov = point_covariances(S, d, np.full(len(d), 0.1), th, V, N, X_R, STD["v"], STD["n"],
                                STD["X_R"])
-    assert time.perf_counter() - t < 2.0
+    assert time.process_time() - t < 2.0
     sub = slice(0, 600)
     assert np.allclose(P[sub], object_points(stage_points(S[sub], d[sub], V), th[sub], N, X_R),
                        atol=1e-9)

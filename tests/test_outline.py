@@ -362,13 +362,13 @@ def test_ten_thousand_moves_check_in_well_under_two_seconds():
     targets = [(X_R[0] + r[i] * np.cos(ang[i]), X_R[1] + r[i] * np.sin(ang[i]),
                 20.0 + rng.uniform(-5, 5), 0.0) for i in range(k)]
     labels = [f"point {i}" for i in range(k)]
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU seconds: a loaded machine stretches the wall clock
     check_moves(targets, labels, None, LIMITS, zones)
-    assert time.perf_counter() - t0 < 2.0
+    assert time.process_time() - t0 < 2.0
     turns = [(*p[:3], (i * 7.0) % 360) for i, p in enumerate(targets)]  # A moves too
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     check_moves(turns, labels, None, LIMITS, zones)
-    assert time.perf_counter() - t0 < 2.0
+    assert time.process_time() - t0 < 2.0
 
 
 def test_outline_dataclass_takes_the_documented_fields():

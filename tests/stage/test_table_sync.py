@@ -11,11 +11,26 @@ from fly_scan_helpers import TICK_HZ
 from dmdsm.host.links.sensor import SPEC, SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.scan.sweep import counted_steps, place_on_move
+from dmdsm.marlin_patch.settings import load_settings
 
 ELF = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
 SPEED = 1.0 if ELF else 4.0  # simavr runs Marlin at about twice real time at most
 N_AVG = 8
 TURN = np.array([2.0, 0.0, 1.5, 300.0])  # X, Y, Z (mm), A (deg): one G1, the table fastest
+# the AVR Marlin polls its endstops in the temperature ISR (F_CPU / 16384, 977 Hz), so the
+# slow re-bump of homing runs past its switch by up to one poll period of steps (and one
+# more before the stepper ISR drops the move) and calls that point 0
+ENDSTOP_POLL_HZ = 16e6 / 0x4000
+
+
+def homing_overshoot_steps(limits) -> np.ndarray:
+    """Most steps each axis (X, Y, Z, A) may stop past its switch after G28: the re-bump's
+    speed (homing feedrate / HOMING_BUMP_DIVISOR) over one endstop poll, plus one."""
+    (divisor,) = [e["value"] for e in load_settings()["edit"]
+                  if e["name"] == "HOMING_BUMP_DIVISOR"]
+    divisor = np.array(divisor.strip("{} ").split(","), float)
+    rate = np.array(limits.homing_feedrate_mm_m, float) / 60.0 / divisor  # mm/s (A: deg/s)
+    return np.ceil(rate * np.array(limits.steps_per_unit, float) / ENDSTOP_POLL_HZ) + 1
 
 
 def test_one_helical_move_is_placed_at_every_shot_by_the_counted_table_steps(emulator):
@@ -59,9 +74,12 @@ def test_one_helical_move_is_placed_at_every_shot_by_the_counted_table_steps(emu
     truth = [np.mean([steps[0][int(w.timestamp) + k * round(period)] for k in range(N_AVG)],
                      axis=0) for w, m in zip(waves, moving) if m]
     # where the steppers stood before the move: the start as counted from the endstops
-    # (the AVR Marlin's homing leaves X a step past its switch)
+    # (the AVR Marlin's homing stops X, Y, Z up to a few steps past their switches, which
+    # then read 0; A has no switch and 10 deg is 88.9 of its steps)
     rest = np.array(list(steps[0].values())[:N_AVG]).mean(axis=0)
-    assert np.all(np.abs(rest - start) * spu <= 1.0 + 1e-9), (rest - start) * spu
+    within = np.maximum(homing_overshoot_steps(sim.limits), 1.0)
+    within[3] = 1.0  # A is never homed: only its 10 deg rounded to steps
+    assert np.all(np.abs(rest - start) * spu <= within + 1e-9), ((rest - start) * spu, within)
     err = placed - (np.array(truth) - (rest - start))
     signed = np.array(err) * spu  # in steps of each axis
     err = np.abs(signed)

@@ -12,6 +12,7 @@ from dmdsm.host.links.sensor import SPEC, SensorClient
 from dmdsm.host.links.stage import StageClient
 from dmdsm.host.scan.sweep import counted_steps, place_on_move
 from dmdsm.marlin_patch.settings import load_settings
+from dmdsm.sim.boards.stage.avr_lockstep import F_CPU_HZ
 
 ELF = os.environ.get("DMDSM_STAGE_FIRMWARE", "")
 SPEED = 1.0 if ELF else 4.0  # simavr runs Marlin at about twice real time at most
@@ -20,7 +21,7 @@ TURN = np.array([2.0, 0.0, 1.5, 300.0])  # X, Y, Z (mm), A (deg): one G1, the ta
 # the AVR Marlin polls its endstops in the temperature ISR (F_CPU / 16384, 977 Hz), so the
 # slow re-bump of homing runs past its switch by up to one poll period of steps (and one
 # more before the stepper ISR drops the move) and calls that point 0
-ENDSTOP_POLL_HZ = 16e6 / 0x4000
+ENDSTOP_POLL_HZ = F_CPU_HZ / 0x4000
 
 
 def homing_overshoot_steps(limits) -> np.ndarray:
